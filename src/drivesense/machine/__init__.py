@@ -1,0 +1,3 @@
+"""Physics of the machine: drives, friction and the cutting process (no I/O)."""
+
+__all__ = []
