@@ -1,0 +1,253 @@
+"""End-milling scenarios of the first paper, simulated with the full stage physics.
+
+Ten cutting conditions (Figs. 15 and 21): radial depth 1.5 or 6.0 mm with a
+6 mm two-flute end mill, spindle 1000 / 4000 / 10 000 min^-1, feed 1 mm/s,
+a small axial depth so the force stays below the stage's kinetic friction.
+
+* ``feed``: the X stage feeds, the X force is the feed-direction component;
+  three idling runs over the same trajectory calibrate the friction.
+* ``cross``: the Y stage feeds while X stands under position control; the X
+  force is the cross-feed component; a tare before the cut calibrates.
+
+Each simulated trace holds the drive signals and the true process force on
+the table (``force_x`` ...), with its scoring window in the metadata.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from drivesense.machine.friction import Ripple
+from drivesense.machine.milling import CuttingCoefficients, EndMill, MillingCut, feed_per_tooth, milling_forces
+from drivesense.machine.presets import table1_stage
+from drivesense.machine.stage import StagePhysics
+from drivesense.recording import Recording
+from drivesense.sim.encoders import LinearScale, RotaryEncoder
+from drivesense.sim.servo import ServoConfig, run_servo
+from drivesense.sim.toolpath import constant_feed, standstill
+
+__all__ = ["CutCondition", "ScenarioSettings", "paper_conditions", "simulate_cut", "simulate_idle",
+           "scenario_names", "condition_by_name"]
+
+
+@dataclass(frozen=True)
+class CutCondition:
+    """One end-milling test.
+
+    Parameters
+    ----------
+    name : str
+        Identifier, e.g. ``"feed_r1.5_S1000"``.
+    direction : {"feed", "cross"}
+        Whether the monitored X axis feeds or stands.
+    radial_depth : float
+        Radial depth of cut [m].
+    spindle_rpm : float
+        Spindle speed [min^-1].
+    feed_speed : float
+        Feed speed [m/s].
+    axial_depth : float
+        Axial depth of cut [m].
+    mode : {"down", "up"}
+        Milling mode for partial immersion.
+    """
+
+    name: str
+    direction: str
+    radial_depth: float
+    spindle_rpm: float
+    feed_speed: float = 1.0e-3
+    axial_depth: float = 0.5e-3
+    mode: str = "down"
+
+
+@dataclass(frozen=True)
+class ScenarioSettings:
+    """Everything about a simulated test that is not the cutting condition.
+
+    Parameters
+    ----------
+    stage : StagePhysics
+        Plant physics (default: Table 1 with the full physics).
+    servo : ServoConfig
+        Controller and signal chain.
+    tool : EndMill
+        6 mm, 2 flutes, 30 deg helix, 2 um runout.
+    coefficients : CuttingCoefficients
+        Aluminium.
+    duration : float
+        Trace length [s].
+    t_contact : float
+        Time the tool first reaches the workpiece edge [s].
+    settle : float
+        Time after the end of the acceleration ramp excluded from scoring [s].
+    coupling_gain : float
+        Share of the Y drive's friction ripple felt by the X table [-].
+    run_spread : float
+        Run-to-run friction variation, 1 sigma [-].
+    ideal : bool
+        Generate data from exactly the estimators' model (tests only).
+    """
+
+    stage: StagePhysics = field(default_factory=table1_stage)
+    servo: ServoConfig = field(default_factory=ServoConfig)
+    tool: EndMill = field(default_factory=lambda: EndMill(6e-3, 2, 30.0, runout=2e-6, runout_phase=0.4))
+    coefficients: CuttingCoefficients = field(default_factory=CuttingCoefficients.aluminium)
+    duration: float = 8.0
+    t_contact: float = 1.5
+    settle: float = 0.3
+    coupling_gain: float = 0.02
+    run_spread: float = 0.02
+    ideal: bool = False
+
+    def as_ideal(self) -> "ScenarioSettings":
+        """Settings that reproduce the estimators' own model exactly."""
+        servo = replace(self.servo, current_noise=0.0, current_sensor_noise=0.0)
+        return replace(self, stage=self.stage.ideal(), servo=servo, coupling_gain=0.0, run_spread=0.0,
+                       ideal=True)
+
+
+def paper_conditions(axial_depth: float = 0.5e-3) -> list[CutCondition]:
+    """The ten conditions of Figs. 15 (feed) and 21 (cross-feed)."""
+    feed = [(1.5, 1000), (1.5, 4000), (6.0, 1000), (1.5, 10000), (6.0, 10000)]
+    cross = [(1.5, 1000), (1.5, 4000), (6.0, 4000), (1.5, 10000), (6.0, 10000)]
+    out = []
+    for direction, grid in (("feed", feed), ("cross", cross)):
+        for r, s in grid:
+            out.append(CutCondition(f"{direction}_r{r:g}_S{s}", direction, r * 1e-3, float(s),
+                                    axial_depth=axial_depth))
+    return out
+
+
+def scenario_names() -> list[str]:
+    """Names accepted by :func:`condition_by_name` (and ``drivesense simulate``)."""
+    return [c.name for c in paper_conditions()] + [f"idle_{c.name}" for c in paper_conditions()
+                                                   if c.direction == "feed"]
+
+
+def condition_by_name(name: str) -> tuple[CutCondition, bool]:
+    """Look up a scenario name; returns ``(condition, is_idle)``."""
+    idle = name.startswith("idle_")
+    base = name[5:] if idle else name
+    for c in paper_conditions():
+        if c.name == base:
+            return c, idle
+    raise KeyError(f"unknown scenario {name!r}; known: {', '.join(scenario_names())}")
+
+
+def _y_ripple(y: np.ndarray) -> np.ndarray:
+    """Friction ripple of the (unsimulated) Y drive [N] versus its position [m]."""
+    rip = (Ripple(5e-3, 3.0, 0.5), Ripple(1.25e-3, 1.0, 1.7))
+    return sum(r.amplitude * np.sin(2 * math.pi * y / r.wavelength + r.phase) for r in rip)
+
+
+def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: bool, label: str) -> Recording:
+    rng = np.random.default_rng(seed)
+    cfg = settings.servo
+    fs = cfg.fs
+    stage = settings.stage if settings.ideal else settings.stage.varied(rng, settings.run_spread)
+    feed_axis = constant_feed(settings.duration, fs, cond.feed_speed)
+    n = feed_axis.position.size
+    t = np.arange(n) / fs
+    if cond.direction == "feed":
+        x_traj = feed_axis
+        y_pos = np.zeros(n)
+    elif cond.direction == "cross":
+        x_traj = standstill(settings.duration, fs)
+        y_pos = feed_axis.position
+    else:
+        raise ValueError(f"condition {cond.name!r}: direction must be 'feed' or 'cross'")
+    tool = settings.tool
+    omega = cond.spindle_rpm * 2 * math.pi / 60.0
+    forces_x = np.zeros(n)
+    forces_y = np.zeros(n)
+    forces_z = np.zeros(n)
+    if cutting:
+        progress = feed_axis.position - np.interp(settings.t_contact, t, feed_axis.position) - tool.diameter / 2
+        angle = omega * t + rng.uniform(0, 2 * math.pi)
+        c = feed_per_tooth(cond.feed_speed, omega, tool.flutes)
+        mf = milling_forces(tool, settings.coefficients,
+                            MillingCut(cond.radial_depth, cond.axial_depth, cond.mode), angle, c,
+                            feed_progress=progress)
+        # tool frame: x along the tool's motion relative to the workpiece (opposite the table's),
+        # y = z x x.  The table (workpiece) feels minus the force on the tool.
+        if cond.direction == "feed":
+            forces_x, forces_y = mf.feed, mf.normal
+        else:
+            forces_x, forces_y = -mf.normal, mf.feed
+        forces_z = -mf.axial
+    table_force = forces_x.copy()
+    if cond.direction == "cross" and settings.coupling_gain:
+        table_force += settings.coupling_gain * _y_ripple(y_pos)
+    normal_load = -forces_z
+    enc = RotaryEncoder().ideal() if settings.ideal else RotaryEncoder()
+    scl = LinearScale().ideal() if settings.ideal else LinearScale()
+    res = run_servo(stage, cfg, x_traj.position, x_traj.velocity, x_traj.acceleration, table_force,
+                    normal_load, encoder=enc, scale=scl, seed=int(rng.integers(2**31)))
+    cruise_start = feed_axis.cruise[0]
+    score = [cruise_start + settings.settle, settings.duration - 0.01]
+    meta = {
+        "name": label,
+        "scenario": cond.name,
+        "kind": "cut" if cutting else "idle",
+        "condition": asdict(cond),
+        "direction": cond.direction,
+        "physics": "ideal (the estimators' own model)" if settings.ideal else
+                   "full (LuGre friction with ripple/drift/load, cogging, lead error, Kt droop, "
+                   "2nd-order current loop, encoder interpolation error, noise, quantisation, coupling)",
+        "seed": int(seed),
+        "tool": {"diameter_m": tool.diameter, "flutes": tool.flutes, "helix_deg": tool.helix_deg,
+                 "runout_m": tool.runout},
+        "t_contact": settings.t_contact,
+        "score_window": score,
+        "tare_window": [cruise_start + settings.settle, settings.t_contact - 0.05],
+        "true_signal": {"T_a": cfg.T_a, "T_b": cfg.T_b, "omega_cc": cfg.omega_cc},
+        "provenance": [f"drivesense.sim {cond.name} ({'cut' if cutting else 'idle'}), seed {seed}"],
+    }
+    channels = {
+        "x_current_ref": res.current_ref,
+        "x_current": res.current,
+        "x_motor_angle": res.motor_angle,
+        "x_table_position": res.table_position,
+        "y_table_position": y_pos,
+        "spindle_speed": np.full(n, omega),
+        "force_x": forces_x,
+        "force_y": forces_y,
+        "force_z": forces_z,
+    }
+    return Recording.from_arrays(channels, fs=fs, meta=meta)
+
+
+def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *, seed: int = 0) -> Recording:
+    """Simulate one cutting test.
+
+    Parameters
+    ----------
+    cond : CutCondition
+        The cutting condition.
+    settings : ScenarioSettings, optional
+        Physics and signal chain (default: full physics of the Table 1 stage).
+    seed : int
+        Seed of every random element (noise, run variation, spindle phase).
+
+    Returns
+    -------
+    Recording
+        ``x_current_ref`` [A], ``x_current`` [A], ``x_motor_angle`` [rad],
+        ``x_table_position`` [m], ``y_table_position`` [m],
+        ``spindle_speed`` [rad/s] and the true forces on the table
+        ``force_x``, ``force_y``, ``force_z`` [N]; metadata include
+        ``score_window`` and ``tare_window`` [s].
+    """
+    settings = settings or ScenarioSettings()
+    return _run(cond, settings, seed, True, cond.name)
+
+
+def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, *, repeats: int = 3,
+                  seed: int = 1000) -> list[Recording]:
+    """Idling runs: the cut's trajectory without cutting, ``repeats`` times (Sec. 4)."""
+    settings = settings or ScenarioSettings()
+    return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}") for k in range(repeats)]
