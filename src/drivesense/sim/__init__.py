@@ -1,0 +1,8 @@
+"""Closed-loop servo simulation producing drive-signal Recordings with the true force."""
+
+from drivesense.sim.scenarios import (CutCondition, ScenarioSettings, condition_by_name, paper_conditions,
+                                      scenario_names, simulate_cut, simulate_idle)
+from drivesense.sim.servo import ServoConfig, run_servo
+
+__all__ = ["CutCondition", "ScenarioSettings", "paper_conditions", "scenario_names", "condition_by_name",
+           "simulate_cut", "simulate_idle", "ServoConfig", "run_servo"]

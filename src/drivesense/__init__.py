@@ -1,0 +1,29 @@
+"""drivesense: process force and tool condition from a CNC machine tool's own drive signals.
+
+>>> import drivesense as ds
+>>> axis = ds.table1_axis()
+>>> cut = ds.sim.simulate_cut(ds.sim.paper_conditions()[0])
+>>> est = ds.estimate.VibrationMode(axis).fit(ds.sim.simulate_idle(ds.sim.paper_conditions()[0]))
+>>> force = est.estimate(cut)                        # Recording with force_x [N]
+"""
+
+from drivesense import errors, estimate, sim
+from drivesense.errors import DriveSenseError
+from drivesense.estimate import CurrentOnly, MEDOB, RigidBody, SignalParams, VibrationMode
+from drivesense.identify.friction import FrictionMap, build_friction_map
+from drivesense.io import read_csv, read_recording, write_csv
+from drivesense.io.axis_file import read_axis_file, write_axis_file
+from drivesense.machine.ballscrew import BallScrewAxis
+from drivesense.machine.presets import table1_axis, table1_stage
+from drivesense.recording import Recording
+from drivesense.score import Score, score_estimate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "errors", "estimate", "sim", "DriveSenseError",
+    "Recording", "read_csv", "read_recording", "write_csv", "read_axis_file", "write_axis_file",
+    "BallScrewAxis", "table1_axis", "table1_stage",
+    "CurrentOnly", "RigidBody", "MEDOB", "VibrationMode", "SignalParams",
+    "FrictionMap", "build_friction_map", "Score", "score_estimate", "__version__",
+]

@@ -1,0 +1,57 @@
+"""Benchmarks behind ``drivesense bench``: accuracy on the paper's conditions and speed ratios."""
+
+from drivesense.bench.accuracy import ConditionResult, run_accuracy, run_condition
+from drivesense.bench.machine import machine_info
+from drivesense.bench.speed import run_speed
+
+__all__ = ["run_accuracy", "run_condition", "ConditionResult", "run_speed", "machine_info", "run_bench"]
+
+
+def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> dict:
+    """Run ``accuracy``, ``speed`` or ``all``; returns the bench JSON as a dict.
+
+    Parameters
+    ----------
+    kind : {"accuracy", "speed", "all"}
+        Which part to run.
+    axis : BallScrewAxis, optional
+        Estimator axis parameters (default: Table 1).
+    signal : SignalParams, optional
+        Estimator signal chain (default: the paper's).
+    progress : callable, optional
+        Called with a label after each step.
+    """
+    from drivesense.errors import ConfigError
+    from drivesense.estimate import SignalParams
+    from drivesense.machine.presets import table1_axis
+
+    if kind not in ("accuracy", "speed", "all"):
+        raise ConfigError(f"unknown bench {kind!r}; choose accuracy, speed or all")
+    axis = axis or table1_axis()
+    signal = signal or SignalParams()
+    out: dict = {"machine": machine_info(), "physics": "full simulator physics (see drivesense.sim.scenarios)"}
+    if kind in ("accuracy", "all"):
+        rows, _ = run_accuracy(axis, signal, progress=progress)
+        out["accuracy"] = rows
+        out["accuracy_summary"] = summarise(rows)
+    if kind in ("speed", "all"):
+        out["speed"] = run_speed(axis, signal)
+        if progress:
+            progress("speed")
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Worst NRMSE per method and direction, and the cross-feed rigid/vibration ratio."""
+    summary: dict = {"worst_nrmse": {}, "cross_rigid_over_vibration_min": None}
+    for r in rows:
+        key = f"{r['method']}/{r['direction']}"
+        summary["worst_nrmse"][key] = max(summary["worst_nrmse"].get(key, 0.0), r["nrmse"])
+    ratios = []
+    by = {(r["scenario"], r["method"]): r for r in rows}
+    for (scen, method), r in by.items():
+        if method == "rigid" and r["direction"] == "cross" and (scen, "vibration") in by:
+            ratios.append(r["nrmse"] / by[(scen, "vibration")]["nrmse"])
+    if ratios:
+        summary["cross_rigid_over_vibration_min"] = min(ratios)
+    return summary

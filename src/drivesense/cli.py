@@ -1,0 +1,303 @@
+"""The ``drivesense`` command line: a thin layer over the Python API.
+
+Every command prints human-readable output (Rich tables), can write
+machine-readable JSON with ``--json PATH``, and turns bad input into a one-line
+message and exit code 2 (no traceback).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="drivesense: process force from a machine tool's own drive signals.")
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _friendly(fn):
+    """Turn expected errors into ``error: ...`` and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        from drivesense.errors import DriveSenseError
+
+        try:
+            return fn(*args, **kwargs)
+        except (DriveSenseError, FileNotFoundError, IsADirectoryError, PermissionError, KeyError) as exc:
+            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            err_console.print(f"[bold red]error:[/] {msg}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def _write_json(path: Optional[Path], payload: dict) -> None:
+    if path is None:
+        return
+    from drivesense.io import atomic_output
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, default=float) + "\n", encoding="utf-8")
+    console.print(f"wrote {path}")
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=err_console, transient=False)
+
+
+def _accuracy_table(rows: list[dict], title: str) -> Table:
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    table = Table(title=title, caption="NRMSE = RMSE / peak-to-peak of the filtered true force; RMSE [N] in the JSON")
+    table.add_column("scenario")
+    table.add_column("dir")
+    table.add_column("F p2p [N]", justify="right")
+    for m in methods:
+        table.add_column(m, justify="right")
+    by = {}
+    for r in rows:
+        by.setdefault(r["scenario"], {})[r["method"]] = r
+    for scen, per in by.items():
+        first = next(iter(per.values()))
+        cells = [f"{per[m]['nrmse'] * 100:.1f} %" if m in per else "-" for m in methods]
+        table.add_row(scen, first["direction"], f"{first['peak_to_peak_n']:.1f}", *cells)
+    return table
+
+
+# ---------------------------------------------------------------------- demo
+@app.command()
+@_friendly
+def demo(
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the results as JSON here.")] = None,
+    out: Annotated[Path, typer.Option("--out", help="Folder for the PNG figures (and demo.json).")] = Path("demo_out"),
+    seed: Annotated[int, typer.Option(help="Seed of the simulated cuts.")] = 1,
+) -> None:
+    """Simulate the Table 1 stage, run idling and the 10 end-milling conditions, score every estimator."""
+    from drivesense.bench import machine_info, run_condition, summarise
+    from drivesense.estimate import SignalParams
+    from drivesense.estimate.design import lowpass_sos
+    from drivesense.machine.presets import table1_axis
+    from drivesense.plot import plot_estimates
+    from drivesense.sim.scenarios import paper_conditions
+
+    axis, signal = table1_axis(), SignalParams()
+    out.mkdir(parents=True, exist_ok=True)
+    rows, figures = [], []
+    conditions = paper_conditions()
+    with _progress() as progress:
+        task = progress.add_task("simulate + estimate", total=len(conditions))
+        for cond in conditions:
+            progress.update(task, description=f"{cond.name:<18}")
+            res = run_condition(cond, axis, signal, seed=seed)
+            rows.extend(res.rows)
+            fig = plot_estimates(res.cut, res.estimates, out / f"{cond.name}.png",
+                                 sos=lowpass_sos(signal, res.cut.fs), max_freq=1500.0,
+                                 title=f"{cond.name}: estimated vs true force_x (full physics)")
+            figures.append(str(fig))
+            progress.advance(task)
+    console.print(_accuracy_table(rows, "Force estimation on the 10 end-milling conditions (full physics)"))
+    summary = summarise(rows)
+    vib = max(summary["worst_nrmse"].get("vibration/feed", 0), summary["worst_nrmse"].get("vibration/cross", 0))
+    console.print(f"worst VibrationMode NRMSE: {vib * 100:.2f} %   "
+                  f"cross-feed RigidBody / VibrationMode (smallest ratio): "
+                  f"{summary['cross_rigid_over_vibration_min']:.1f}x")
+    console.print(f"figures: {out}/<scenario>.png")
+    payload = {"machine": machine_info(), "axis": axis.to_dict(), "signal": signal.to_dict(),
+               "accuracy": rows, "summary": summary, "figures": figures}
+    _write_json(json_path or out / "demo.json", payload)
+
+
+# ------------------------------------------------------------------ simulate
+@app.command()
+@_friendly
+def simulate(
+    scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", help="Output .nc (lossless) or .csv.")] = None,
+    list_: Annotated[bool, typer.Option("--list", help="List the scenarios.")] = False,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    ideal: Annotated[bool, typer.Option(help="Use exactly the estimators' model (no friction, noise...).")] = False,
+) -> None:
+    """Simulate one scenario to a file: drive signals plus the true force."""
+    from drivesense.errors import ConfigError
+    from drivesense.sim.scenarios import ScenarioSettings, condition_by_name, scenario_names, simulate_cut, simulate_idle
+
+    if list_:
+        for name in scenario_names():
+            console.print(name)
+        return
+    if scenario is None or out is None:
+        raise ConfigError("give a SCENARIO and --out FILE (or --list)")
+    cond, is_idle = condition_by_name(scenario)
+    settings = ScenarioSettings().as_ideal() if ideal else ScenarioSettings()
+    rec = simulate_idle(cond, settings, repeats=1, seed=seed)[0] if is_idle else simulate_cut(cond, settings, seed=seed)
+    _save_recording(rec, out)
+    console.print(f"wrote {out}: {rec!r}")
+
+
+def _save_recording(rec, out: Path) -> None:
+    from drivesense.errors import ConfigError
+
+    suffix = Path(out).suffix.lower()
+    if suffix == ".nc":
+        rec.save(out)
+    elif suffix == ".csv":
+        rec.to_csv(out)
+    else:
+        raise ConfigError(f"output '{out}': use a .nc (netCDF, lossless) or .csv suffix")
+
+
+# ------------------------------------------------------------------ estimate
+def _read(path: Path, axis_name: str):
+    from drivesense.io import read_recording
+
+    return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)
+
+
+def _parse_window(text: str) -> tuple[float, float]:
+    from drivesense.errors import ConfigError
+
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"--tare {text!r}: expected START:END in seconds, e.g. 0.5:1.4") from None
+    if not b > a:
+        raise ConfigError(f"--tare {text!r}: END must be after START")
+    return a, b
+
+
+@app.command()
+@_friendly
+def estimate(
+    trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
+    axis_file: Annotated[Path, typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")],
+    out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N].")],
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration")] = "vibration",
+    idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
+    tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the estimate (and reference, if any).")] = None,
+    axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
+) -> None:
+    """Estimate the process force from a trace of current reference, motor angle and table position."""
+    from drivesense.errors import ConfigError
+    from drivesense.estimate import make_estimator
+    from drivesense.io import write_csv
+    from drivesense.io.axis_file import read_axis_file
+
+    axis, signal = read_axis_file(axis_file)
+    est = make_estimator(method, axis, signal, axis_name=axis_name)
+    rec = _read(trace, axis_name)
+    if idle and tare:
+        raise ConfigError("give either --idle runs or --tare, not both")
+    info: dict = {"method": method, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples}
+    if idle:
+        est.fit([_read(p, axis_name) for p in idle])
+        info["compensation"] = "friction map"
+        info["friction_map_repeatability_n"] = est.friction_map.repeatability_rms
+    elif tare:
+        info["compensation"] = "tare"
+        info["tare_n"] = est.tare(rec, *_parse_window(tare))
+    else:
+        info["compensation"] = "none"
+    force = est.estimate(rec)
+    write_csv(force, out)
+    f = force[est.output_channel]
+    info.update({"latency_s": force.meta["latency_s"], "output": str(out),
+                 "force_n": {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
+                             "std": float(f.std())}})
+    if est.output_channel in rec.channels:
+        from drivesense.estimate.design import lowpass_sos
+        from drivesense.score import score_estimate
+
+        window = (rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration)
+        s = score_estimate(force, rec, channel=est.output_channel, window=tuple(rec.meta.get("score_window", window)),
+                           sos=lowpass_sos(signal, rec.fs))
+        info["score_vs_reference"] = s.to_dict()
+    if plot:
+        from drivesense.estimate.design import lowpass_sos
+        from drivesense.plot import plot_estimates
+
+        truth = rec if est.output_channel in rec.channels else force
+        plot_estimates(truth, {method: force}, plot, channel=est.output_channel, sos=lowpass_sos(signal, rec.fs),
+                       window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration))
+        info["plot"] = str(plot)
+    table = Table(title=f"{method} estimate of {trace.name}", show_header=False)
+    table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
+    table.add_row("compensation", info["compensation"] + (f" ({info['tare_n']:.2f} N)" if "tare_n" in info else ""))
+    table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms")
+    table.add_row(f"{est.output_channel} mean / min / max",
+                  f"{f.mean():.2f} / {f.min():.2f} / {f.max():.2f} N")
+    if "score_vs_reference" in info:
+        s = info["score_vs_reference"]
+        table.add_row("vs reference", f"RMSE {s['rmse_n']:.2f} N, NRMSE {s['nrmse'] * 100:.2f} %")
+    console.print(table)
+    console.print(f"wrote {out}")
+    _write_json(json_path, info)
+
+
+# --------------------------------------------------------------------- bench
+@app.command()
+@_friendly
+def bench(
+    kind: Annotated[str, typer.Argument(help="accuracy | speed | all")] = "all",
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
+) -> None:
+    """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
+    from drivesense.bench import run_bench
+
+    with _progress() as progress:
+        total = {"accuracy": 10, "speed": 1, "all": 11}.get(kind, 1)
+        task = progress.add_task(f"bench {kind}", total=total)
+        result = run_bench(kind, progress=lambda label: progress.advance(task))
+    if "accuracy" in result:
+        console.print(_accuracy_table(result["accuracy"], "Accuracy (full physics)"))
+    if "speed" in result:
+        sp = result["speed"]
+        table = Table(title="Speed (same-run baselines)", show_header=False)
+        for key in ("estimator_realtime_factor", "estimator_vs_sosfilt", "stream_realtime_factor",
+                    "stream_max_dev_n", "simulator_realtime_factor", "estimator_peak_mb", "stream_state_bytes"):
+            table.add_row(key, f"{sp[key]:.4g}")
+        console.print(table)
+    _write_json(json_path, result)
+
+
+# ---------------------------------------------------------------------- axis
+@app.command("axis")
+@_friendly
+def axis_cmd(
+    out: Annotated[Path, typer.Option("--out", help="Where to write the AXIS.toml.")],
+    preset: Annotated[str, typer.Option(help="Parameter set: table1 (the first paper's stage).")] = "table1",
+) -> None:
+    """Write an AXIS.toml from a preset, to edit for your own machine."""
+    from drivesense.errors import ConfigError
+    from drivesense.estimate import SignalParams
+    from drivesense.io.axis_file import write_axis_file
+    from drivesense.machine.presets import table1_axis
+
+    if preset != "table1":
+        raise ConfigError(f"unknown preset {preset!r} (known: table1)")
+    write_axis_file(out, table1_axis(), SignalParams())
+    console.print(f"wrote {out}")
+
+
+def main() -> None:
+    """Entry point of the ``drivesense`` script."""
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
