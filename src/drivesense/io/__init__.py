@@ -1,0 +1,97 @@
+"""Reading and writing Recordings: CSV, netCDF4.
+
+Every writer here is atomic: it writes a temporary file in the target's
+directory and moves it into place with :func:`os.replace`, so a crash never
+leaves half a file under the target name (see :func:`atomic_output`).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+
+__all__ = [
+    "read_csv",
+    "write_csv",
+    "save_netcdf",
+    "load_netcdf",
+    "read_recording",
+    "atomic_output",
+]
+
+
+@contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Context manager giving a temporary path that replaces `path` on success.
+
+    Parameters
+    ----------
+    path : str or Path
+        Final file.  Its directory must exist.
+
+    Yields
+    ------
+    Path
+        Temporary file (already created, empty) in the same directory; write
+        it inside the ``with`` block.  On an exception it is deleted and `path`
+        is left untouched.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory of `path` does not exist.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
+    # like tempfile.mkstemp, but created by open() so it gets the usual (umask) mode
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(8)}.tmp")
+    open(tmp, "x").close()
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
+from .netcdf import load_netcdf, save_netcdf  # noqa: E402
+
+
+def read_recording(path: str | Path, **kw: Any):
+    """Read a Recording, choosing the reader by the file suffix.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` (:func:`read_csv`) or ``.nc`` (:func:`load_netcdf`).
+    **kw
+        Passed to :func:`read_csv` (``axis``, ``mapping``, ``fs``, ...);
+        netCDF files take none.
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    ConfigError
+        Unknown suffix, or keywords given for a netCDF file.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return read_csv(path, **kw)
+    if suffix == ".nc":
+        if kw:
+            raise ConfigError(f"{path}: netCDF files take no reader options, got {sorted(kw)}")
+        return load_netcdf(path)
+    raise ConfigError(f"{path}: unknown file type {suffix or '(no suffix)'!r} "
+                      "(known: .csv, .nc)")

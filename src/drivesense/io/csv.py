@@ -1,0 +1,308 @@
+"""CSV files with a ``name [unit]`` header, read into and written from Recordings.
+
+Format
+------
+- Lines starting with ``#`` and blank lines are skipped; the first other line
+  is the header.  Delimiter: ``,`` (or ``;`` / tab, detected from the header).
+- Each header cell is ``name [unit]``, e.g. ``time [ms]``,
+  ``table_position [mm]``, ``force_x [N]``.  Without brackets the unit is the
+  SI unit of the channel's quantity (``1`` for names outside the data model).
+- A ``time`` column (any time unit) gives the time base; it must be uniform
+  within ``rel_tol``.  Without one, ``fs`` must be given.
+- Bare axis channel names (``current_ref``, ``motor_angle``,
+  ``table_position``...) get the prefix ``{axis}_``.
+
+Values are converted to SI; the provenance lists every conversion and rename.
+"""
+
+from __future__ import annotations
+
+import csv as _csv
+import errno
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import units as _units
+from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..recording import Recording
+
+__all__ = ["read_csv", "write_csv", "BARE_AXIS_CHANNELS"]
+
+#: Column names that are prefixed with ``{axis}_`` when read.
+BARE_AXIS_CHANNELS = ("current_ref", "current", "motor_angle", "table_position",
+                      "position", "velocity", "acceleration")
+_AXES = ("x", "y", "z")
+_HEADER_RE = re.compile(r"^(.*?)\s*\[([^\[\]]*)\]\s*$")
+
+
+def _decode(raw: bytes) -> str:
+    """UTF-8 (with or without BOM), else Latin-1 (e.g. 'µm' from a Windows tool)."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def _find_header(path: Path) -> tuple[int, str]:
+    """(1-based line number, text) of the header: the first non-blank, non-comment line."""
+    if not path.is_file():
+        raise FileNotFoundError(errno.ENOENT, "CSV file not found", str(path))
+    with open(path, "rb") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            line = _decode(raw).rstrip("\r\n")
+            if _is_data(line):
+                return lineno, line
+    raise InvalidSignalError(f"{path.name}: empty file (no header line)")
+
+
+def _is_data(line: str) -> bool:
+    s = line.strip()
+    return bool(s) and not s.startswith("#")
+
+
+def _data_linenos(lines: list[str], header_lineno: int) -> np.ndarray:
+    """1-based file line numbers of the data rows (slow; only for error messages)."""
+    return np.array([i + 1 for i in range(header_lineno, len(lines)) if _is_data(lines[i])])
+
+
+def _lines(path: Path) -> list[str]:
+    return _decode(path.read_bytes()).splitlines()
+
+
+def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str) -> np.ndarray:
+    """All data rows as a float array (n_rows, n_cols); errors name line and column."""
+    try:  # Latin-1 never fails to decode; numbers are ASCII anyway
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+            return np.loadtxt(path, delimiter=delim, comments="#", skiprows=header_lineno,
+                              dtype=np.float64, ndmin=2, encoding="latin-1")
+    except ValueError as exc:
+        first_error = str(exc)
+    lines = _lines(path)
+    for lineno in _data_linenos(lines, header_lineno):  # slow path: find the first bad cell
+        cells = lines[lineno - 1].split("#", 1)[0].split(delim)
+        if len(cells) != len(header):
+            raise InvalidSignalError(f"{path.name}, line {lineno}: {len(cells)} cells, but the "
+                                     f"header has {len(header)} columns")
+        for col, cell in zip(header, cells):
+            try:
+                float(cell)
+            except ValueError:
+                raise InvalidSignalError(f"{path.name}, line {lineno}, column {col!r}: "
+                                         f"{cell.strip()!r} is not a number") from None
+    raise InvalidSignalError(f"{path.name}: cannot parse the data ({first_error})")
+
+
+def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | None = None,
+             fs: float | None = None, rel_tol: float = 1e-3,
+             meta: Mapping | None = None) -> Recording:
+    """Read a CSV file with a ``name [unit]`` header into a Recording (SI).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    axis : {"x", "y", "z"}, optional
+        Axis of bare channel names (``current_ref`` -> ``x_current_ref``).
+    mapping : mapping of str to str, optional
+        Column name (without the bracket) -> canonical name, applied before the
+        axis prefix, e.g. ``{"Strom": "x_current_ref", "Zeit": "time"}``.
+    fs : float, optional
+        Sampling rate [Hz]; required without a ``time`` column, checked against
+        it (within `rel_tol`) otherwise.
+    rel_tol : float, optional
+        Allowed step jitter of the time column, see
+        :func:`drivesense.recording.validate_timebase`.
+    meta : mapping, optional
+        Metadata for the Recording; ``name`` defaults to the file stem.
+
+    Returns
+    -------
+    Recording
+        Channels in SI, time base from the time column (or `fs`, t0 = 0).
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    InvalidSignalError
+        No header or no data rows, a non-numeric cell or a non-finite value
+        (naming line and column).
+    TimebaseError
+        The time column is not strictly increasing or not uniform (naming the
+        file line), or disagrees with `fs`.
+    UnitError
+        Unknown unit, or a unit that does not fit the channel (naming the column).
+    ConfigError
+        No time column and no `fs`; duplicate channels; bad `axis`.
+    """
+    from ..recording import Recording, _check_fs, _timebase
+
+    path = Path(path)
+    fs = None if fs is None else _check_fs(fs)
+    if axis not in _AXES:
+        raise ConfigError(f"axis must be one of {_AXES}, got {axis!r}")
+    mapping = dict(mapping or {})
+    header_lineno, header_line = _find_header(path)
+    delim = max([",", ";", "\t"], key=header_line.count)
+    header = [c.strip() for c in next(_csv.reader([header_line], delimiter=delim))]
+
+    # --- columns: names, units, conversions (checked before the data are parsed)
+    columns: list[tuple[str, str, _units.UnitInfo]] = []  # (canonical name, header, unit)
+    seen: dict[str, str] = {}
+    renamed, converted = [], []
+    time_col = None
+    for j, cell in enumerate(header):
+        m = _HEADER_RE.match(cell)
+        raw, unit = (m.group(1).strip(), m.group(2).strip()) if m else (cell, None)
+        if not raw:
+            raise ConfigError(f"{path.name}: column {j + 1} ({cell!r}) has no name")
+        name = mapping.get(raw, raw)
+        if name.lower() == "time":
+            name = "time"
+        elif name in BARE_AXIS_CHANNELS:
+            name = f"{axis}_{name}"
+        if name != raw:
+            renamed.append(f"{raw}->{name}")
+        if name in seen:
+            raise ConfigError(f"{path.name}: columns {seen[name]!r} and {cell!r} both give "
+                              f"channel {name!r}")
+        seen[name] = cell
+        quantity = _units.quantity_of_channel(name)
+        if unit is None:
+            unit = _units.si_unit(quantity) if quantity else "1"
+        try:
+            info = _units.unit_info(unit, quantity=quantity, name=name)
+        except UnitError as exc:
+            raise UnitError(f"{path.name}, column {cell!r}: {exc}") from None
+        if not _units.is_si_unit(unit):
+            converted.append(f"{name} {unit}->{_units.SI_UNITS[info.quantity]}")
+        if name == "time":
+            time_col = j
+        columns.append((name, cell, info))
+    if all(c[0] == "time" for c in columns):
+        raise InvalidSignalError(f"{path.name}: no channel columns (header: {header_line!r})")
+    if time_col is None and fs is None:
+        raise ConfigError(f"{path.name}: no 'time' column, so fs (sampling rate in Hz) must be "
+                          f"given (columns: {', '.join(header)})")
+
+    # --- data
+    values = _parse_values(path, header_lineno, header, delim)
+    if values.size == 0:
+        raise InvalidSignalError(f"{path.name}: no data rows after the header "
+                                 f"(line {header_lineno})")
+    if values.shape[1] != len(header):
+        raise InvalidSignalError(f"{path.name}: data rows have {values.shape[1]} cells, the "
+                                 f"header has {len(header)} columns")
+
+    channels, si_units = {}, {}
+    for j, (name, cell, info) in enumerate(columns):
+        col = values[:, j] * info.factor if info.factor != 1.0 else values[:, j].copy()
+        bad = np.flatnonzero(~np.isfinite(col))
+        if bad.size and name != "time":
+            raise InvalidSignalError(
+                f"{path.name}, column {cell!r}: channel {name!r} has {bad.size} non-finite "
+                f"values (first {float(values[bad[0], j])!r} at line "
+                f"{_data_linenos(_lines(path), header_lineno)[bad[0]]})")
+        if name == "time":
+            time = col
+        else:
+            channels[name] = col
+            si_units[name] = _units.SI_UNITS[info.quantity]
+
+    if time_col is not None:
+        where = f"{path.name}, column {header[time_col]!r}"
+        try:
+            fs_t, jitter = _timebase(time, rel_tol, where, None, "sample")
+        except TimebaseError:  # again, with file line numbers in the message
+            _timebase(time, rel_tol, where, _data_linenos(_lines(path), header_lineno), "line")
+            raise
+        if fs is not None and abs(fs - fs_t) > rel_tol * fs:
+            raise TimebaseError(f"{where}: time column gives fs={fs_t:.12g} Hz, but fs={fs!r} Hz "
+                                "was given")
+        fs, t0 = fs_t, float(time[0])
+        timebase = (f"fs={fs:.12g} Hz from column {header[time_col]!r} "
+                    f"(max step jitter {100 * jitter:.3g} %)")
+    else:
+        t0 = 0.0
+        timebase = f"fs={float(fs):.12g} Hz given (no time column)"
+
+    parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
+            ([f"converted {', '.join(converted)}"] if converted else []) + [timebase]
+    meta = {"name": path.stem, **dict(meta or {})}
+    rec = Recording.from_arrays(channels, fs=fs, t0=t0, units=si_units, meta=meta)
+    return rec.with_provenance(f"read_csv {path.name}: " + "; ".join(parts))
+
+
+def _check_name(name: str, what: str) -> None:
+    if any(c in name for c in ",;\t[]\n\r#"):
+        raise ConfigError(f"{what} {name!r} cannot be written as a CSV column name")
+
+
+def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | None = None,
+              channels: Sequence[str] | None = None) -> Path:
+    """Write a Recording as CSV: ``time [s]``, then one ``name [unit]`` column per channel.
+
+    Parameters
+    ----------
+    rec : Recording
+        The data.
+    path : str or Path
+        Target file, replaced atomically.
+    units : mapping of str to str, optional
+        Output unit per channel name (and ``"time"``), e.g. ``{"x_table_position":
+        "mm", "time": "ms"}``; default SI.
+    channels : sequence of str, optional
+        Channels to write, in order; default all.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    MissingChannelError
+        A requested channel is absent.
+    UnitError
+        A unit is unknown or does not fit the channel.
+    ConfigError
+        `units` names a channel that is not written.
+
+    Notes
+    -----
+    Values are written with :func:`repr` (shortest text that reads back to the
+    same float64), so SI output reads back bit-exactly.  Metadata is not written.
+    """
+    from . import atomic_output
+
+    path = Path(path)
+    units = dict(units or {})
+    names = list(rec.channels if channels is None else channels)
+    rec.require(*names)
+    extra = [k for k in units if k != "time" and k not in names]
+    if extra:
+        raise ConfigError(f"units given for channel(s) not written: {extra}")
+    unit = units.get("time", "s")
+    cols = [_units.from_si(rec.time, unit, quantity=_units.TIME, name="time")]
+    head = [f"time [{unit}]"]
+    for name in names:
+        _check_name(name, "channel")
+        unit = units.get(name, rec.units(name))
+        quantity = _units.quantity_of_unit(rec.units(name))
+        cols.append(_units.from_si(rec[name], unit, quantity=quantity, name=name))
+        head.append(f"{name} [{unit}]")
+    text_cols = [map(repr, c.tolist()) for c in cols]
+    with atomic_output(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            fh.write(",".join(head) + "\n")
+            fh.write("\n".join(map(",".join, zip(*text_cols))))
+            fh.write("\n")
+    return path
