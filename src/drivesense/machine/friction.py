@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-__all__ = ["Ripple", "LuGreFriction", "lugre_step", "ripple_value"]
+__all__ = ["Ripple", "LuGreFriction", "lugre_step", "ripple_value", "coulomb_level"]
 
 
 @dataclass(frozen=True)
@@ -122,16 +122,22 @@ def ripple_value(p: np.ndarray, x: float) -> float:
 
 
 @njit(cache=True, fastmath=False)
-def lugre_step(p: np.ndarray, z: float, v: float, x: float, load: float, dt: float):
+def coulomb_level(p: np.ndarray, x: float, load: float) -> float:
+    """Coulomb level [N] of packed parameters ``p`` at position ``x`` [m] with extra normal ``load`` [N]."""
+    level = p[0] + ripple_value(p, x) + p[7] * load
+    return level if level > 0.0 else 0.0
+
+
+@njit(cache=True, fastmath=False)
+def lugre_step(p: np.ndarray, z: float, v: float, F_c: float, dt: float):
     """Advance the bristle state over ``dt`` at velocity ``v`` and return ``(z_new, force)``.
 
-    The bristle equation is integrated exactly for constant ``v`` over the
-    step (exponential approach to the steady deflection), which is stable for
-    any ``sigma0``.  ``force`` is the friction force [N] opposing motion.
+    ``F_c`` is the local Coulomb level from :func:`coulomb_level` (position
+    and load change little within a sub-step).  The bristle equation is
+    integrated exactly for constant ``v`` over the step (exponential approach
+    to the steady deflection), which is stable for any ``sigma0``.  ``force``
+    is the friction force [N] opposing motion.
     """
-    F_c = p[0] + ripple_value(p, x) + p[7] * load
-    if F_c < 0.0:
-        F_c = 0.0
     g = F_c + (p[1] - p[0]) * math.exp(-(v / p[2]) ** 2)
     if g < 1e-12:
         g = 1e-12

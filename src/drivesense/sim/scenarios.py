@@ -170,7 +170,7 @@ def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: boo
         angle = omega * t + rng.uniform(0, 2 * math.pi)
         c = feed_per_tooth(cond.feed_speed, omega, tool.flutes)
         mf = milling_forces(tool, settings.coefficients,
-                            MillingCut(cond.radial_depth, cond.axial_depth, cond.mode), angle, c,
+                            MillingCut(cond.radial_depth, cond.axial_depth, cond.mode, axial_slices=8), angle, c,
                             feed_progress=progress)
         # tool frame: x along the tool's motion relative to the workpiece (opposite the table's),
         # y = z x x.  The table (workpiece) feels minus the force on the tool.

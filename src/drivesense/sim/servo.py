@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from drivesense.machine.friction import lugre_step, ripple_value
+from drivesense.machine.friction import coulomb_level, lugre_step
 from drivesense.machine.stage import StagePhysics
 from drivesense.sim.encoders import LinearScale, RotaryEncoder
 
@@ -258,6 +258,8 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
         f0 = f_ext[k]
         f1 = f_ext[k + 1] if k + 1 < n else f0
         load = n_load[k]
+        fc_m = coulomb_level(fric_m, x_m, 0.0) if has_fm else 0.0
+        fc_g = coulomb_level(fric_g, x_t, load) if has_fg else 0.0
         # ---- plant sub-steps
         for j in range(nsub):
             t_rel = k + j / nsub - ta_samples  # driver input index (zero-order hold)
@@ -273,11 +275,11 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
             kt = K_t * (1.0 - droop * (i_act / i_rated) ** 2)
             f_motor = kt * i_act / R + cog_f
             if has_fm:
-                z_m, ff_m = lugre_step(fric_m, z_m, v_m, x_m, 0.0, dt)
+                z_m, ff_m = lugre_step(fric_m, z_m, v_m, fc_m, dt)
             else:
                 ff_m = 0.0
             if has_fg:
-                z_g, ff_g = lugre_step(fric_g, z_g, v_t, x_t, load, dt)
+                z_g, ff_g = lugre_step(fric_g, z_g, v_t, fc_g, dt)
             else:
                 ff_g = 0.0
             f_spring = K_r * (x_m + lead - x_t) + C_k * (v_m - v_t)
