@@ -367,6 +367,24 @@ class Recording:
         return cls(_build_dataset(arrays, fs, float(t0), _meta_to_json(meta)), validate=validate)
 
     @classmethod
+    def _from_trusted(cls, channels: Mapping[str, np.ndarray], units: Mapping[str, str], *, fs: float,
+                      t0: float, meta: Mapping) -> Recording:
+        """Wrap arrays the caller owns and vouches for (float64, 1-D, SI, finite) without copies.
+
+        Internal fast path for computed results (estimator outputs), which
+        are built from validated inputs; public builders validate.
+        """
+        n = next(iter(channels.values())).shape[0]
+        grid = float(t0) + np.arange(n) / float(fs)
+        ds = xr.Dataset({k: ("time", a, {"units": units[k]}) for k, a in channels.items()},
+                        coords={"time": ("time", grid, {"units": "s"})},
+                        attrs={"fs": float(fs), META_ATTR: _meta_to_json(meta)})
+        rec = cls.__new__(cls)
+        rec._ds = ds
+        rec._fs, rec._t0, rec._n = float(fs), float(t0), n
+        return rec
+
+    @classmethod
     def from_time_arrays(cls, time: ArrayLike, channels: Mapping[str, ArrayLike],
                          units: Mapping[str, str] | None = None, meta: Mapping | None = None,
                          rel_tol: float = 1e-3) -> Recording:

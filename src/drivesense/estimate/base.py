@@ -226,9 +226,9 @@ class LinearForceEstimator:
                 "provenance": list(recording.meta.get("provenance", []))
                 + [f"estimate {self.name}: latency {design.latency_s * 1e3:.3f} ms, "
                    f"low-pass {self.signal.lpf_order}th order {self.signal.lpf_hz:g} Hz"]}
-        # a linear filter of validated (finite) inputs is finite: skip re-validation on this hot path
-        return Recording.from_arrays({self.output_channel: force}, fs=recording.fs, t0=recording.t0,
-                                     units={self.output_channel: "N"}, meta=meta, validate=False)
+        # a linear filter of validated (finite) inputs is finite: no copy, no re-validation on this hot path
+        return Recording._from_trusted({self.output_channel: force}, {self.output_channel: "N"},
+                                       fs=recording.fs, t0=recording.t0, meta=meta)
 
     def check_length(self, recording: Recording) -> None:
         """Raise :class:`SignalTooShortError` if the trace is shorter than the filters' start-up."""

@@ -144,7 +144,7 @@ def _prime(taps, hist, scalars, zi, zi_unit, h_pole, i0, th0, x0, fvals, fx0, fd
         zi[s, 1] = zi_unit[s, 1] * r
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _kernel(taps, sos, h_pole, fvals, fx0, fdx, hist, scalars, zi, cur, ang, tab, out):
     n = taps.shape[1]
     nsec = sos.shape[0]
