@@ -247,10 +247,13 @@ class BallScrewAxis:
         names = [f.name for f in fields(cls)]
         missing = [n for n in names if n not in values]
         unknown = [k for k in values if k not in names]
+        problems = []
         if missing:
-            raise ConfigError(f"{source}: missing key(s) {', '.join(missing)} (expected {', '.join(names)})")
+            problems.append(f"missing key(s) {', '.join(missing)}")
         if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)} (expected {', '.join(names)})")
+            problems.append(f"unknown key(s) {', '.join(unknown)}")
+        if problems:
+            raise ConfigError(f"{source}: {'; '.join(problems)} (expected {', '.join(names)})")
         try:
             return cls(**{n: values[n] for n in names})
         except ConfigError as exc:

@@ -1,0 +1,201 @@
+"""The command line as a user meets it: happy paths and every bad input of the core issue."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from drivesense.cli import app
+from drivesense.io import read_csv, write_csv
+from drivesense.recording import Recording
+from drivesense.sim.scenarios import ScenarioSettings, paper_conditions, simulate_cut, simulate_idle
+
+runner = CliRunner()
+USER_UNITS = {"x_table_position": "mm", "x_motor_angle": "deg", "x_current_ref": "mA"}
+
+
+def invoke(*args: str):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    """A folder with an axis file, a cross-feed CSV trace in user units and feed traces with idle runs."""
+    d = tmp_path_factory.mktemp("cli")
+    assert invoke("axis", "--out", d / "axis.toml").exit_code == 0
+    short = replace(ScenarioSettings(), duration=2.5, t_contact=1.2)
+    cross = next(c for c in paper_conditions() if c.direction == "cross")
+    feed = next(c for c in paper_conditions() if c.direction == "feed")
+    cut = simulate_cut(cross, short, seed=3)
+    write_csv(cut.select("x_current_ref", "x_motor_angle", "x_table_position", "force_x"), d / "cross.csv",
+              units=USER_UNITS)
+    feed_cut = simulate_cut(feed, short, seed=4)
+    feed_cut.save(d / "feed.nc")
+    for k, rec in enumerate(simulate_idle(feed, short, repeats=2, seed=50)):
+        rec.save(d / f"idle{k}.nc")
+    # an idle run over a shorter stretch of travel: does not cover the cut
+    half = simulate_idle(feed, replace(short, duration=1.2), repeats=1, seed=60)[0]
+    half.save(d / "idle_short.nc")
+    return d
+
+
+def _csv_with(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _lines_from(work: Path, n: int = 400) -> list[str]:
+    lines = (work / "cross.csv").read_text().splitlines()
+    return lines[: n + 1]
+
+
+# --------------------------------------------------------------------- happy
+def test_estimate_csv_in_user_units_with_tare(work):
+    out = work / "force.csv"
+    res = invoke("estimate", work / "cross.csv", "--axis", work / "axis.toml", "--method", "vibration",
+                 "--tare", "0.5:1.1", "--out", out, "--json", work / "est.json")
+    assert res.exit_code == 0, res.output
+    force = read_csv(out)
+    assert force.channels == ["force_x"] and force.units("force_x") == "N"
+    header = out.read_text().splitlines()[0]
+    assert header.startswith("time [s]") and "force_x [N]" in header
+    info = json.loads((work / "est.json").read_text())
+    assert info["method"] == "vibration"
+    assert info["latency_s"] == pytest.approx(0.3e-3)
+    # the trace carries its true force: the estimate must be close to it (NRMSE well under 10 %)
+    assert info["score_vs_reference"]["nrmse"] < 0.10
+
+
+def test_estimate_with_idle_runs_and_plot(work):
+    res = invoke("estimate", work / "feed.nc", "--axis", work / "axis.toml", "--method", "rigid",
+                 "--idle", work / "idle0.nc", "--idle", work / "idle1.nc", "--out", work / "f2.csv",
+                 "--plot", work / "f2.png", "--json", work / "f2.json")
+    assert res.exit_code == 0, res.output
+    info = json.loads((work / "f2.json").read_text())
+    assert info["compensation"] == "friction map" and info["friction_map_repeatability_n"] >= 0
+    assert (work / "f2.png").stat().st_size > 10_000
+
+
+def test_simulate_list_and_file(work):
+    res = invoke("simulate", "--list")
+    assert res.exit_code == 0 and "cross_r6_S10000" in res.output and "idle_feed_r1.5_S1000" in res.output
+    res = invoke("simulate", "feed_r1.5_S4000", "--out", work / "sim.nc")
+    assert res.exit_code == 0, res.output
+    rec = Recording.load(work / "sim.nc")
+    assert {"x_current_ref", "x_motor_angle", "x_table_position", "force_x"} <= set(rec.channels)
+
+
+def test_help_lists_commands():
+    res = invoke("--help")
+    assert res.exit_code == 0
+    for cmd in ("demo", "simulate", "estimate", "bench", "axis"):
+        assert cmd in res.output
+
+
+# ----------------------------------------------------------------- bad input
+def _bad(work, trace, *extra, axis=None):
+    res = invoke("estimate", trace, "--axis", axis or work / "axis.toml", "--out", work / "bad_out.csv", *extra)
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    return " ".join(res.output.split())
+
+
+def test_nan_value_names_channel(work):
+    lines = _lines_from(work)
+    cells = lines[50].split(",")
+    cells[2] = "nan"
+    lines[50] = ",".join(cells)
+    msg = _bad(work, _csv_with(work / "nan.csv", "\n".join(lines)))
+    assert "x_motor_angle [deg]" in msg and "nan" in msg.lower() and "51" in msg
+
+
+def test_inf_value_names_channel(work):
+    lines = _lines_from(work)
+    cells = lines[60].split(",")
+    cells[1] = "inf"
+    lines[60] = ",".join(cells)
+    msg = _bad(work, _csv_with(work / "inf.csv", "\n".join(lines)))
+    assert "x_current_ref" in msg
+
+
+def test_non_monotonic_time(work):
+    lines = _lines_from(work)
+    lines[30], lines[31] = lines[31], lines[30]
+    msg = _bad(work, _csv_with(work / "order.csv", "\n".join(lines)))
+    assert "time" in msg and ("monoton" in msg or "decreas" in msg or "increas" in msg)
+
+
+def test_jittery_time(work):
+    lines = _lines_from(work)
+    cells = lines[100].split(",")
+    cells[0] = repr(float(cells[0]) + 3e-5)
+    lines[100] = ",".join(cells)
+    msg = _bad(work, _csv_with(work / "jitter.csv", "\n".join(lines)))
+    assert "jitter" in msg or "uniform" in msg
+
+
+def test_missing_channel(work):
+    rec = read_csv(work / "cross.csv")
+    write_csv(rec.select("x_current_ref", "x_table_position"), work / "missing.csv")
+    msg = _bad(work, work / "missing.csv")
+    assert "x_motor_angle" in msg
+
+
+def test_unknown_unit(work):
+    lines = _lines_from(work)
+    lines[0] = lines[0].replace("x_table_position [mm]", "x_table_position [furlong]")
+    msg = _bad(work, _csv_with(work / "unit.csv", "\n".join(lines)))
+    assert "furlong" in msg and "x_table_position" in msg
+
+
+@pytest.mark.parametrize("edit, expect", [
+    (lambda t: t.replace("K_t = ", "Kt = "), "Kt"),
+    (lambda t: "\n".join(line for line in t.splitlines() if not line.startswith("K_r")), "K_r"),
+    (lambda t: t.replace("M_t = 6.55", "M_t = -6.55"), "M_t"),
+    (lambda t: t.replace("lpf_order = 4", "lpf_order = 4.5"), "lpf_order"),
+    (lambda t: t.replace("[axis]", "[axis"), "TOML"),
+    (lambda t: t.replace("T_b = ", "T_bee = "), "T_bee"),
+])
+def test_bad_axis_file(work, edit, expect):
+    text = (work / "axis.toml").read_text()
+    bad = work / "bad_axis.toml"
+    bad.write_text(edit(text))
+    msg = _bad(work, work / "cross.csv", axis=bad)
+    assert expect in msg
+
+
+def test_missing_axis_file(work):
+    msg = _bad(work, work / "cross.csv", axis=work / "nope.toml")
+    assert "nope.toml" in msg
+
+
+def test_trace_too_short(work):
+    lines = _lines_from(work, n=40)
+    msg = _bad(work, _csv_with(work / "short.csv", "\n".join(lines)))
+    assert "samples" in msg and "needs" in msg
+
+
+def test_idle_runs_do_not_cover_the_cut(work):
+    msg = _bad(work, work / "feed.nc", "--idle", work / "idle_short.nc")
+    assert "cover" in msg and "mm" in msg
+
+
+def test_bad_tare_and_method(work):
+    assert "START:END" in _bad(work, work / "cross.csv", "--tare", "abc")
+    assert "outside" in _bad(work, work / "cross.csv", "--tare", "10:11")
+    assert "unknown method" in _bad(work, work / "cross.csv", "--method", "magic")
+
+
+def test_demo_runs_and_writes_json_and_figures(tmp_path):
+    res = invoke("demo", "--out", tmp_path / "demo", "--json", tmp_path / "demo.json")
+    assert res.exit_code == 0, res.output
+    payload = json.loads((tmp_path / "demo.json").read_text())
+    rows = payload["accuracy"]
+    assert len(rows) == 40 and {r["method"] for r in rows} == {"current", "rigid", "medob", "vibration"}
+    assert len(list((tmp_path / "demo").glob("*.png"))) == 10
+    assert all(np.isfinite(r["nrmse"]) for r in rows)
