@@ -30,7 +30,8 @@ class MEDOB(LinearForceEstimator):
         ax = self.axis
         return ForceCombination(c_I=1.0, m_m=ax.M_r, c_m=ax.C_r, m_t=ax.M_t, c_t=ax.C_t)
 
-    def check_length(self, recording) -> None:  # noqa: D102 - same contract as the base
+    def check_length(self, recording) -> None:
+        """As the base class (``recording``: the trace), and require a low-pass of order >= 2."""
         if self.signal.lpf_order < 2:
             from drivesense.errors import ConfigError
 

@@ -84,7 +84,15 @@ class FrictionMap:
         return FrictionTable(self.force, self.position[0], self.bin_width or 1.0)
 
     def check_coverage(self, table_position: np.ndarray, name: str = "trace") -> None:
-        """Raise :class:`CoverageError` if ``table_position`` [m] leaves the mapped range."""
+        """Raise :class:`CoverageError` if ``table_position`` [m] leaves the mapped range.
+
+        Parameters
+        ----------
+        table_position : ndarray
+            Table positions of the trace to estimate [m].
+        name : str
+            Trace name for the message.
+        """
         lo, hi = self.position[0], self.position[-1]
         tol = max(5.0 * self.bin_width, 10e-6)  # cut-load deflection moves the table a few um
         bad = (table_position < lo - tol) | (table_position > hi + tol)
