@@ -197,5 +197,16 @@ def test_demo_runs_and_writes_json_and_figures(tmp_path):
     payload = json.loads((tmp_path / "demo.json").read_text())
     rows = payload["accuracy"]
     assert len(rows) == 40 and {r["method"] for r in rows} == {"current", "rigid", "medob", "vibration"}
-    assert len(list((tmp_path / "demo").glob("*.png"))) == 10
+    pngs = {p.name for p in (tmp_path / "demo").glob("*.png")}
+    assert {f"{c}.png" for c in {r["scenario"] for r in rows}} <= pngs
+    assert any(name.startswith("friction_maps_") for name in pngs)
     assert all(np.isfinite(r["nrmse"]) for r in rows)
+
+
+def test_friction_map_command(work):
+    res = invoke("friction", work / "idle0.nc", work / "idle1.nc", "--axis", work / "axis.toml",
+                 "--method", "vibration", "--plot", work / "fm.png", "--json", work / "fm.json")
+    assert res.exit_code == 0, res.output
+    info = json.loads((work / "fm.json").read_text())
+    assert info["runs"] == 2 and info["bins"] > 100 and info["repeatability_rms_n"] >= 0
+    assert info["dominant_wavelengths"] and (work / "fm.png").exists()

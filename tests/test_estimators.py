@@ -133,11 +133,6 @@ def test_vibration_mode_closed_loop_sinusoid_response(freq):
     assert abs(np.degrees(np.angle(got / expected))) < 1.0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "simulator bug, sim/servo.py _servo_loop: each plant sub-step drives the symplectic-Euler update "
-    "with the END-of-sub-step motor current (i1 is advanced before use), i.e. the thrust acts 20 us "
-    "early; the rigid-body estimators then read a 200 Hz table force 3.2 % (RigidBody) / 2.7 % (MEDOB) "
-    "too small on the ideal plant; with the start-of-sub-step current: 0.7 % / 0.2 %"))
 @pytest.mark.parametrize("cls", [RigidBody, MEDOB], ids=lambda c: c.__name__)
 def test_rigid_mode_closed_loop_sinusoid_response(cls):
     cfg = ServoConfig(current_noise=0.0, current_sensor_noise=0.0)

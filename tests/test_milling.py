@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import inspect
 import math
-import time
 
 import numpy as np
 import pytest
@@ -341,15 +340,3 @@ def test_public_api_documents_every_parameter():
             for p in params:
                 if p not in ("self", "cls"):
                     assert p in doc, f"{name}: parameter '{p}' is undocumented"
-
-
-def test_speed_600k_samples():
-    tool, cut = EndMill(D, 2, helix_deg=30.0, runout=5e-6), MillingCut(D / 2, 5e-3, axial_slices=20)
-    angle = np.linspace(0.0, 2000.0, 600_000)
-    milling_forces(tool, K, cut, angle[:10], C, feed_progress=0.0)   # compile / load the cache
-    best = math.inf
-    for _ in range(2):
-        t0 = time.perf_counter()
-        milling_forces(tool, K, cut, angle, C, feed_progress=np.zeros(angle.size))
-        best = min(best, time.perf_counter() - t0)
-    assert best < 2.0

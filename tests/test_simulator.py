@@ -150,11 +150,6 @@ def test_ideal_plant_cruise_thrust_is_viscous_force(ideal_feed_run):
                                rtol=1e-3)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sim/servo.py _servo_loop: in each plant sub-step the motor current is advanced first "
-    "(i1 = i_in + (i1 - i_in) * a1) and its end-of-step value drives the symplectic-Euler step, "
-    "so the thrust acts one sub-step (T/substeps = 20 us) early relative to the table force; "
-    "the rigid-body balance is violated by ~3 % at 200 Hz (0.7 % with the start-of-step current)"))
 def test_closed_loop_rigid_body_balance_at_200Hz():
     """Sum of both rows of Eq. 2: M_r a_m + M_t a_t + C_r v_m + C_t v_t = K_t I / R + F (no spring)."""
     f = 200.0

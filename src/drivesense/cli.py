@@ -92,7 +92,7 @@ def demo(
     from drivesense.estimate import SignalParams
     from drivesense.estimate.design import lowpass_sos
     from drivesense.machine.presets import table1_axis
-    from drivesense.plot import plot_estimates
+    from drivesense.plot import plot_estimates, plot_friction_maps
     from drivesense.sim.scenarios import paper_conditions
 
     axis, signal = table1_axis(), SignalParams()
@@ -109,6 +109,10 @@ def demo(
                                  sos=lowpass_sos(signal, res.cut.fs), max_freq=1500.0,
                                  title=f"{cond.name}: estimated vs true force_x (full physics)")
             figures.append(str(fig))
+            if res.friction_maps and not any("friction" in f for f in figures):
+                maps = {m: res.friction_maps[m] for m in ("rigid", "vibration")}
+                figures.append(str(plot_friction_maps(maps, out / f"friction_maps_{cond.name}.png",
+                                                      title=f"Friction from 3 idling runs ({cond.name})")))
             progress.advance(task)
     console.print(_accuracy_table(rows, "Force estimation on the 10 end-milling conditions (full physics)"))
     summary = summarise(rows)
@@ -116,7 +120,7 @@ def demo(
     console.print(f"worst VibrationMode NRMSE: {vib * 100:.2f} %   "
                   f"cross-feed RigidBody / VibrationMode (smallest ratio): "
                   f"{summary['cross_rigid_over_vibration_min']:.1f}x")
-    console.print(f"figures: {out}/<scenario>.png")
+    console.print(f"figures: {out}/<scenario>.png, {out}/friction_maps_*.png")
     payload = {"machine": machine_info(), "axis": axis.to_dict(), "signal": signal.to_dict(),
                "accuracy": rows, "summary": summary, "figures": figures}
     _write_json(json_path or out / "demo.json", payload)
@@ -247,6 +251,50 @@ def estimate(
         table.add_row("vs reference", f"RMSE {s['rmse_n']:.2f} N, NRMSE {s['nrmse'] * 100:.2f} %")
     console.print(table)
     console.print(f"wrote {out}")
+    _write_json(json_path, info)
+
+
+# ------------------------------------------------------------------ friction
+@app.command()
+@_friendly
+def friction(
+    idle: Annotated[list[Path], typer.Argument(help="Idle (air-cut) runs over the same trajectory.")],
+    axis_file: Annotated[Path, typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")],
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration")] = "rigid",
+    bin_width: Annotated[float, typer.Option(help="Position bin [um].")] = 1.0,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG (map per run + wavelength spectrum).")] = None,
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
+    axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
+) -> None:
+    """Friction map from idling runs: position dependence, repeatability, dominant wavelengths."""
+    import numpy as np
+
+    from drivesense.dsp import dominant_wavelengths, wavelength_spectrum
+    from drivesense.estimate import make_estimator
+    from drivesense.io.axis_file import read_axis_file
+
+    axis, signal = read_axis_file(axis_file)
+    est = make_estimator(method, axis, signal, axis_name=axis_name)
+    est.fit([_read(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
+    fmap = est.friction_map
+    peaks = dominant_wavelengths(*wavelength_spectrum(fmap.force, fmap.position), 5)
+    info = {"method": method, "runs": len(idle), "bins": int(fmap.position.size), "bin_width_m": fmap.bin_width,
+            "position_range_m": [float(fmap.position[0]), float(fmap.position[-1])],
+            "mean_n": float(fmap.force.mean()), "peak_to_peak_n": float(np.ptp(fmap.force)),
+            "repeatability_rms_n": fmap.repeatability_rms, "dominant_wavelengths": peaks}
+    table = Table(title=f"{method} friction map from {len(idle)} idle run(s)", show_header=False)
+    table.add_row("table positions", f"{info['position_range_m'][0] * 1e3:.3f} to "
+                  f"{info['position_range_m'][1] * 1e3:.3f} mm in {info['bins']} bins")
+    table.add_row("mean / peak-to-peak", f"{info['mean_n']:.2f} / {info['peak_to_peak_n']:.2f} N")
+    table.add_row("repeatability (run-to-run std, rms)", f"{fmap.repeatability_rms:.3f} N")
+    table.add_row("dominant wavelengths", ", ".join(f"{p['wavelength_m'] * 1e3:.3g} mm ({p['amplitude']:.2f} N)"
+                                                    for p in peaks))
+    console.print(table)
+    if plot:
+        from drivesense.plot import plot_friction_maps
+
+        plot_friction_maps({method: fmap}, plot)
+        info["plot"] = str(plot)
     _write_json(json_path, info)
 
 

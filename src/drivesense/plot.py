@@ -11,37 +11,14 @@ from typing import Mapping
 
 import numpy as np
 
+from drivesense.dsp import amplitude_spectrum, dominant_wavelengths, wavelength_spectrum
 from drivesense.recording import Recording
 from drivesense.score import aligned_reference
 
-__all__ = ["plot_estimates", "amplitude_spectrum"]
+__all__ = ["plot_estimates", "plot_friction_maps"]
 
 _COLOURS = {"truth": "black", "current": "tab:gray", "rigid": "tab:orange", "medob": "tab:green",
             "vibration": "tab:blue"}
-
-
-def amplitude_spectrum(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Single-sided amplitude spectrum (Hann window, amplitude-corrected).
-
-    Parameters
-    ----------
-    x : ndarray
-        Signal (mean removed inside).
-    fs : float
-        Sample rate [Hz].
-
-    Returns
-    -------
-    freq : ndarray
-        Frequencies [Hz].
-    amplitude : ndarray
-        Amplitude in the signal's unit.
-    """
-    x = np.asarray(x, float) - np.mean(x)
-    w = np.hanning(x.size)
-    spec = np.fft.rfft(x * w)
-    amp = 2.0 * np.abs(spec) / w.sum()
-    return np.fft.rfftfreq(x.size, 1.0 / fs), amp
 
 
 def _pyplot():
@@ -112,6 +89,55 @@ def plot_estimates(truth: Recording, estimates: Mapping[str, Recording], path, *
     ax_f.grid(alpha=0.3, which="both")
     ax_f.legend(loc="upper right", fontsize=8, ncol=3)
     fig.suptitle(title or str(truth.meta.get("name", "")))
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_friction_maps(maps, path, *, title: str | None = None) -> Path:
+    """Write a PNG: each friction map's runs against table position, and its wavelength spectrum.
+
+    The first paper's Figs. 7-11 in one figure: position dependence and
+    repeatability (left), periodic components by wavelength (right).
+
+    Parameters
+    ----------
+    maps : mapping of str to FrictionMap
+        Maps by method name.
+    path : str or Path
+        Output PNG.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(maps), 2, figsize=(11, 3.2 * len(maps)), squeeze=False)
+    for row, (name, fmap) in enumerate(maps.items()):
+        ax_x, ax_w = axes[row]
+        for k, run in enumerate(fmap.runs):
+            ok = np.isfinite(run)
+            ax_x.plot(fmap.position[ok] * 1e3, run[ok], lw=0.7, label=f"idle run {k + 1}")
+        ax_x.plot(fmap.position * 1e3, fmap.force, color="black", lw=1.0, label="map (mean)")
+        ax_x.set_xlabel("table position [mm]")
+        ax_x.set_ylabel(f"{name}: friction [N]")
+        ax_x.set_title(f"{name}: repeatability {fmap.repeatability_rms:.2f} N rms", fontsize=9)
+        ax_x.legend(fontsize=7, loc="upper right")
+        ax_x.grid(alpha=0.3)
+        wl, amp = wavelength_spectrum(fmap.force, fmap.position)
+        ax_w.loglog(wl * 1e3, amp, lw=0.8)
+        for peak in dominant_wavelengths(wl, amp, 4):
+            ax_w.annotate(f"{peak['wavelength_m'] * 1e3:.3g} mm", (peak["wavelength_m"] * 1e3, peak["amplitude"]),
+                          fontsize=7, textcoords="offset points", xytext=(3, 3))
+        ax_w.set_xlabel("wavelength [mm]")
+        ax_w.set_ylabel("amplitude [N]")
+        ax_w.grid(alpha=0.3, which="both")
+    fig.suptitle(title or "Friction maps from idling runs")
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -39,6 +39,8 @@ class ConditionResult:
         nrmse, max_abs_error_n, peak_to_peak_n, harmonic_error, latency_s``).
     idle_repeatability_n : dict of str to float
         Run-to-run repeatability of each method's friction map [N] (feed only).
+    friction_maps : dict of str to FrictionMap
+        Each method's friction map (feed only).
     """
 
     condition: CutCondition
@@ -46,6 +48,7 @@ class ConditionResult:
     estimates: dict[str, Recording] = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
     idle_repeatability_n: dict[str, float] = field(default_factory=dict)
+    friction_maps: dict = field(default_factory=dict)
 
 
 def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
@@ -63,6 +66,7 @@ def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
         if idle is not None:
             est.fit(idle)
             result.idle_repeatability_n[method] = est.friction_map.repeatability_rms
+            result.friction_maps[method] = est.friction_map
         else:
             est.tare(cut, *cut.meta["tare_window"])
         out = est.estimate(cut)
@@ -71,6 +75,8 @@ def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
         row = {"scenario": cond.name, "direction": cond.direction, "method": method}
         row.update({k: v for k, v in s.to_dict().items() if k != "window"})
         row["latency_s"] = out.meta["latency_s"]
+        if method in result.idle_repeatability_n:
+            row["friction_map_repeatability_n"] = result.idle_repeatability_n[method]
         result.rows.append(row)
     return result
 

@@ -18,7 +18,7 @@ from typing import Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from drivesense.errors import CoverageError, NotFittedError, SignalTooShortError
+from drivesense.errors import CoverageError, SignalTooShortError
 from drivesense.estimate.design import ForceCombination, ObserverDesign, discretise
 from drivesense.estimate.kernel import FrictionTable, KernelState, run_kernel
 from drivesense.estimate.signal import SignalParams

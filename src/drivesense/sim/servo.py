@@ -265,12 +265,14 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
             t_rel = k + j / nsub - ta_samples  # driver input index (zero-order hold)
             idx = int(math.floor(t_rel + 1e-9))
             i_in = out_iref[idx] if idx >= 0 else 0.0
+            # semi-implicit Euler takes every force at the start of the sub-step: the current too
+            i_start = i2 if pole2 > 0.0 else i1
             i1 = i_in + (i1 - i_in) * a1
             if pole2 > 0.0:
                 i2 = i1 + (i2 - i1) * a2
-                i_act = i2
+                i_act = i_start
             else:
-                i_act = i1
+                i_act = i_start
             i_act += i_dist
             kt = K_t * (1.0 - droop * (i_act / i_rated) ** 2)
             f_motor = kt * i_act / R + cog_f
