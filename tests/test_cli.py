@@ -105,22 +105,18 @@ def _bad(work, trace, *extra, axis=None):
     return " ".join(res.output.split())
 
 
-def test_nan_value_names_channel(work):
+@pytest.mark.parametrize("row, col, value, expect", [
+    (50, 2, "nan", ["x_motor_angle [deg]", "nan", "51"]),
+    (60, 1, "inf", ["x_current_ref [mA]", "inf", "61"]),
+])
+def test_non_finite_value_names_column_and_line(work, row, col, value, expect):
     lines = _lines_from(work)
-    cells = lines[50].split(",")
-    cells[2] = "nan"
-    lines[50] = ",".join(cells)
-    msg = _bad(work, _csv_with(work / "nan.csv", "\n".join(lines)))
-    assert "x_motor_angle [deg]" in msg and "nan" in msg.lower() and "51" in msg
-
-
-def test_inf_value_names_channel(work):
-    lines = _lines_from(work)
-    cells = lines[60].split(",")
-    cells[1] = "inf"
-    lines[60] = ",".join(cells)
-    msg = _bad(work, _csv_with(work / "inf.csv", "\n".join(lines)))
-    assert "x_current_ref" in msg
+    cells = lines[row].split(",")
+    cells[col] = value
+    lines[row] = ",".join(cells)
+    msg = _bad(work, _csv_with(work / f"{value}.csv", "\n".join(lines)))
+    for part in expect:
+        assert part in msg.lower() or part in msg
 
 
 def test_non_monotonic_time(work):

@@ -112,9 +112,8 @@ def test_ideal_idle_gives_zero_force(ideal, cls):
     assert abs(f[after].mean()) < 0.05
 
 
-@pytest.mark.parametrize("freq", [100.0, 200.0])
-def test_vibration_mode_closed_loop_sinusoid_response(freq):
-    """Ideal plant, closed loop at standstill, 20 N on the table: estimate = LPF(force) delayed."""
+def _sinusoid_response(cls, freq):
+    """Ideal plant, closed loop at standstill, 20 N sinusoid on the table: phasor of the estimate."""
     cfg = ServoConfig(current_noise=0.0, current_sensor_noise=0.0)
     n = int(0.6 * FS)
     t = np.arange(n) / FS
@@ -124,32 +123,25 @@ def test_vibration_mode_closed_loop_sinusoid_response(freq):
                     encoder=RotaryEncoder().ideal(), scale=LinearScale().ideal())
     rec = Recording.from_arrays({"x_current_ref": res.current_ref, "x_motor_angle": res.motor_angle,
                                  "x_table_position": res.table_position, "force_x": force}, fs=FS)
-    out = VibrationMode(AXIS, SignalParams()).estimate(rec)
+    out = cls(AXIS, SignalParams()).estimate(rec)
     sel = t > 0.2
-    got = phasor(out["force_x"][sel], t[sel], freq)
     _, h = sps.sosfreqz(SOS, worN=[freq], fs=FS)
-    assert abs(got) == pytest.approx(20.0 * abs(h[0]), rel=0.01)
-    expected = -20j * h[0] * np.exp(-2j * math.pi * freq * out.meta["latency_s"])  # F = Re(-20j e^{jwt})
+    return phasor(out["force_x"][sel], t[sel], freq), h[0], out.meta["latency_s"]
+
+
+@pytest.mark.parametrize("freq", [100.0, 200.0])
+def test_vibration_mode_closed_loop_sinusoid_response(freq):
+    """Estimate = LPF(force) delayed by the declared latency, in amplitude and phase."""
+    got, h, latency = _sinusoid_response(VibrationMode, freq)
+    assert abs(got) == pytest.approx(20.0 * abs(h), rel=0.01)
+    expected = -20j * h * np.exp(-2j * math.pi * freq * latency)  # F = Re(-20j e^{jwt})
     assert abs(np.degrees(np.angle(got / expected))) < 1.0
 
 
 @pytest.mark.parametrize("cls", [RigidBody, MEDOB], ids=lambda c: c.__name__)
 def test_rigid_mode_closed_loop_sinusoid_response(cls):
-    cfg = ServoConfig(current_noise=0.0, current_sensor_noise=0.0)
-    freq = 200.0
-    n = int(0.6 * FS)
-    t = np.arange(n) / FS
-    force = 20.0 * np.sin(2 * math.pi * freq * t)
-    z = np.zeros(n)
-    res = run_servo(table1_stage().ideal(), cfg, z, z, z, force, z,
-                    encoder=RotaryEncoder().ideal(), scale=LinearScale().ideal())
-    rec = Recording.from_arrays({"x_current_ref": res.current_ref, "x_motor_angle": res.motor_angle,
-                                 "x_table_position": res.table_position}, fs=FS)
-    out = cls(AXIS, SignalParams()).estimate(rec)
-    sel = t > 0.2
-    got = phasor(out["force_x"][sel], t[sel], freq)
-    _, h = sps.sosfreqz(SOS, worN=[freq], fs=FS)
-    assert abs(got) == pytest.approx(20.0 * abs(h[0]), rel=0.015)
+    got, h, _ = _sinusoid_response(cls, 200.0)
+    assert abs(got) == pytest.approx(20.0 * abs(h), rel=0.015)
 
 
 # --------------------------------------------------------- RigidBody vs MEDOB

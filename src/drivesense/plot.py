@@ -30,6 +30,15 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path) -> Path:
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_estimates(truth: Recording, estimates: Mapping[str, Recording], path, *, channel: str = "force_x",
                    sos=None, window: tuple[float, float] | None = None, zoom_s: float = 0.1,
                    max_freq: float | None = None, title: str | None = None) -> Path:
@@ -89,12 +98,7 @@ def plot_estimates(truth: Recording, estimates: Mapping[str, Recording], path, *
     ax_f.grid(alpha=0.3, which="both")
     ax_f.legend(loc="upper right", fontsize=8, ncol=3)
     fig.suptitle(title or str(truth.meta.get("name", "")))
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def plot_friction_maps(maps, path, *, title: str | None = None) -> Path:
@@ -138,9 +142,4 @@ def plot_friction_maps(maps, path, *, title: str | None = None) -> Path:
         ax_w.set_ylabel("amplitude [N]")
         ax_w.grid(alpha=0.3, which="both")
     fig.suptitle(title or "Friction maps from idling runs")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

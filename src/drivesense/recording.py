@@ -32,6 +32,7 @@ from .errors import (
     TimebaseError,
     UnitError,
 )
+from .timebase import check_fs, check_timebase, format_time, validate_timebase
 
 __all__ = ["Recording", "validate_timebase", "META_ATTR"]
 
@@ -40,22 +41,6 @@ META_ATTR = "drivesense_meta"
 
 
 # ----------------------------------------------------------------- helpers
-def _fmt_t(t: float, fs: float) -> str:
-    """Time [s] with enough decimals to resolve one sample at `fs` [Hz]."""
-    decimals = min(12, max(0, math.ceil(math.log10(fs)))) if fs > 1 else 3
-    return f"{t:.{decimals}f}"
-
-
-def _check_fs(fs: Any) -> float:
-    real = (int, float, np.integer, np.floating)
-    if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, real):
-        raise TimebaseError(f"fs must be a number in Hz, got {fs!r}")
-    fs = float(fs)
-    if not (math.isfinite(fs) and fs > 0):
-        raise TimebaseError(f"fs must be a positive finite number of Hz, got {fs!r}")
-    return fs
-
-
 def _jsonable(obj: Any, path: str) -> Any:
     """Return `obj` as plain JSON types (numpy scalars/arrays converted)."""
     if obj is None or isinstance(obj, (bool, str)):
@@ -133,91 +118,7 @@ def _check_finite(name: str, arr: np.ndarray, t0: float, fs: float) -> None:
     i = int(bad[0])
     kind = "NaN" if np.isnan(arr[i]) else ("inf" if arr[i] > 0 else "-inf")
     raise InvalidSignalError(f"channel {name!r} has {bad.size} non-finite values (first {kind} "
-                             f"at sample {i}, t={_fmt_t(t0 + i / fs, fs)} s)")
-
-
-def _timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike | None,
-              row_label: str) -> tuple[float, float]:
-    """Check a time axis [s]; return (fs [Hz], worst step jitter as a fraction)."""
-    try:
-        t = np.asarray(time, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TimebaseError(f"{name}: time values are not numeric") from None
-    if t.ndim != 1:
-        raise TimebaseError(f"{name}: time must be 1-D, got shape {t.shape}")
-    if not (isinstance(rel_tol, (int, float)) and rel_tol >= 0):
-        raise ConfigError(f"rel_tol must be a number >= 0, got {rel_tol!r}")
-    label = np.arange(t.size) if rows is None else np.asarray(rows)
-
-    def at(i: int) -> str:
-        return f"{row_label} {label[i]}"
-
-    n = t.size
-    if n < 2:
-        raise TimebaseError(f"{name}: {n} time value(s); a time base needs at least 2")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise TimebaseError(f"{name}: {bad.size} non-finite time value(s) "
-                            f"(first {float(t[bad[0]])!r} at {at(int(bad[0]))})")
-    d = np.diff(t)
-    nonpos = np.flatnonzero(d <= 0)
-    if nonpos.size:
-        i = int(nonpos[0]) + 1
-        raise TimebaseError(f"{name}: time does not increase at {at(i)}: t={t[i]:.10g} s "
-                            f"follows t={t[i - 1]:.10g} s at {at(i - 1)}")
-    med = float(np.median(d))
-    jit = np.abs(d - med) / med
-    worst = int(np.argmax(jit))
-    if jit[worst] > rel_tol:
-        raise TimebaseError(
-            f"{name}: sampling is not uniform: the step to {at(worst + 1)} is {d[worst]:.6g} s, "
-            f"the median step is {med:.6g} s ({100 * jit[worst]:.3g} % jitter, "
-            f"{100 * rel_tol:.3g} % allowed); resample explicitly (and record it in the "
-            "provenance) or raise rel_tol")
-    jmax = float(jit[worst])
-    fs = float(f"{(n - 1) / (t[-1] - t[0]):.12g}")  # drop float noise, e.g. from ms -> s
-    dev = (t - (t[0] + np.arange(n) / fs)) * fs
-    worst = int(np.argmax(np.abs(dev)))
-    if abs(dev[worst]) > 0.5:
-        raise TimebaseError(
-            f"{name}: timestamps drift from a uniform grid at fs={fs:.12g} Hz by "
-            f"{dev[worst]:+.3g} samples at {at(worst)}; resample explicitly or split the data")
-    return fs, jmax
-
-
-def validate_timebase(time: ArrayLike, *, rel_tol: float = 1e-3, name: str = "time",
-                      rows: ArrayLike | None = None, row_label: str = "sample") -> float:
-    """Check that time stamps form a uniform time base and return its rate.
-
-    Parameters
-    ----------
-    time : array_like
-        Time stamps [s], 1-D.
-    rel_tol : float, optional
-        Largest allowed step jitter, ``max|dt - median(dt)| / median(dt)``
-        (default 1e-3, i.e. 0.1 %).
-    name : str, optional
-        What the time stamps are (e.g. ``"cut_03.csv, column 'time [ms]'"``),
-        used to start error messages.
-    rows : array_like, optional
-        Label of each stamp in messages (e.g. line numbers of a file); default
-        the 0-based sample index.
-    row_label : str, optional
-        Word for `rows` in messages (``"sample"``, ``"line"``...).
-
-    Returns
-    -------
-    float
-        fs [Hz] = (n - 1) / (t[-1] - t[0]), rounded to 12 significant digits.
-
-    Raises
-    ------
-    TimebaseError
-        Fewer than 2 stamps, non-finite stamps, time not strictly increasing,
-        step jitter above `rel_tol`, or stamps drifting more than half a sample
-        from the uniform grid; the message names the offending row.
-    """
-    return _timebase(time, rel_tol, name, rows, row_label)[0]
+                             f"at sample {i}, t={format_time(t0 + i / fs, fs)} s)")
 
 
 def _build_dataset(arrays: Mapping[str, tuple[np.ndarray, str]], fs: float, t0: float,
@@ -267,7 +168,7 @@ class Recording:
         if "fs" not in ds.attrs:
             raise TimebaseError("dataset has no attrs['fs'] (sampling rate in Hz); build it with "
                                 "Recording.from_arrays or Recording.from_time_arrays")
-        fs = _check_fs(ds.attrs["fs"])
+        fs = check_fs(ds.attrs["fs"])
         n = int(ds.sizes["time"])
         has_time = "time" in ds.coords and n > 0
         t0 = float(ds["time"].values[0]) if has_time else float(ds.attrs.get("t0", 0.0))
@@ -350,7 +251,7 @@ class Recording:
         -------
         Recording
         """
-        fs = _check_fs(fs)
+        fs = check_fs(fs)
         if not (isinstance(t0, (int, float, np.integer, np.floating)) and math.isfinite(t0)):
             raise TimebaseError(f"t0 must be a finite number of seconds, got {t0!r}")
         units = dict(units or {})
@@ -411,7 +312,7 @@ class Recording:
         """
         units = dict(units or {})
         t, _ = _units.to_si(time, units.pop("time", "s"), quantity=_units.TIME, name="time")
-        fs, jitter = _timebase(t, rel_tol, "time", None, "sample")
+        fs, jitter = check_timebase(t, rel_tol, "time", None, "sample")
         for name, values in channels.items():
             if np.shape(values)[:1] != (t.size,):
                 raise InvalidSignalError(f"channel {name!r} has shape {np.shape(values)}, "

@@ -143,10 +143,11 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     ConfigError
         No time column and no `fs`; duplicate channels; bad `axis`.
     """
-    from ..recording import Recording, _check_fs, _timebase
+    from ..recording import Recording
+    from ..timebase import check_fs, check_timebase
 
     path = Path(path)
-    fs = None if fs is None else _check_fs(fs)
+    fs = None if fs is None else check_fs(fs)
     if axis not in _AXES:
         raise ConfigError(f"axis must be one of {_AXES}, got {axis!r}")
     mapping = dict(mapping or {})
@@ -220,9 +221,9 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     if time_col is not None:
         where = f"{path.name}, column {header[time_col]!r}"
         try:
-            fs_t, jitter = _timebase(time, rel_tol, where, None, "sample")
+            fs_t, jitter = check_timebase(time, rel_tol, where, None, "sample")
         except TimebaseError:  # again, with file line numbers in the message
-            _timebase(time, rel_tol, where, _data_linenos(_lines(path), header_lineno), "line")
+            check_timebase(time, rel_tol, where, _data_linenos(_lines(path), header_lineno), "line")
             raise
         if fs is not None and abs(fs - fs_t) > rel_tol * fs:
             raise TimebaseError(f"{where}: time column gives fs={fs_t:.12g} Hz, but fs={fs!r} Hz "

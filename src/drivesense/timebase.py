@@ -1,0 +1,119 @@
+"""Time bases: checking that time stamps are uniform, and formatting sample times.
+
+A Recording is uniformly sampled; real controller traces and CSV exports carry
+time stamps that must be checked (monotonic, no jitter, no drift) before they
+are trusted.  Messages name the offending row so a user can find it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .errors import ConfigError, TimebaseError
+
+__all__ = ["validate_timebase", "check_timebase", "check_fs", "format_time"]
+
+
+def format_time(t: float, fs: float) -> str:
+    """Time [s] with enough decimals to resolve one sample at `fs` [Hz]."""
+    decimals = min(12, max(0, math.ceil(math.log10(fs)))) if fs > 1 else 3
+    return f"{t:.{decimals}f}"
+
+
+def check_fs(fs: Any) -> float:
+    """Return `fs` [Hz] as a float; TimebaseError unless it is a positive finite number."""
+    real = (int, float, np.integer, np.floating)
+    if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, real):
+        raise TimebaseError(f"fs must be a number in Hz, got {fs!r}")
+    fs = float(fs)
+    if not (math.isfinite(fs) and fs > 0):
+        raise TimebaseError(f"fs must be a positive finite number of Hz, got {fs!r}")
+    return fs
+
+
+def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike | None,
+              row_label: str) -> tuple[float, float]:
+    """Check a time axis [s]; return (fs [Hz], worst step jitter as a fraction)."""
+    try:
+        t = np.asarray(time, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TimebaseError(f"{name}: time values are not numeric") from None
+    if t.ndim != 1:
+        raise TimebaseError(f"{name}: time must be 1-D, got shape {t.shape}")
+    if not (isinstance(rel_tol, (int, float)) and rel_tol >= 0):
+        raise ConfigError(f"rel_tol must be a number >= 0, got {rel_tol!r}")
+    label = np.arange(t.size) if rows is None else np.asarray(rows)
+
+    def at(i: int) -> str:
+        return f"{row_label} {label[i]}"
+
+    n = t.size
+    if n < 2:
+        raise TimebaseError(f"{name}: {n} time value(s); a time base needs at least 2")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise TimebaseError(f"{name}: {bad.size} non-finite time value(s) "
+                            f"(first {float(t[bad[0]])!r} at {at(int(bad[0]))})")
+    d = np.diff(t)
+    nonpos = np.flatnonzero(d <= 0)
+    if nonpos.size:
+        i = int(nonpos[0]) + 1
+        raise TimebaseError(f"{name}: time does not increase at {at(i)}: t={t[i]:.10g} s "
+                            f"follows t={t[i - 1]:.10g} s at {at(i - 1)}")
+    med = float(np.median(d))
+    jit = np.abs(d - med) / med
+    worst = int(np.argmax(jit))
+    if jit[worst] > rel_tol:
+        raise TimebaseError(
+            f"{name}: sampling is not uniform: the step to {at(worst + 1)} is {d[worst]:.6g} s, "
+            f"the median step is {med:.6g} s ({100 * jit[worst]:.3g} % jitter, "
+            f"{100 * rel_tol:.3g} % allowed); resample explicitly (and record it in the "
+            "provenance) or raise rel_tol")
+    jmax = float(jit[worst])
+    fs = float(f"{(n - 1) / (t[-1] - t[0]):.12g}")  # drop float noise, e.g. from ms -> s
+    dev = (t - (t[0] + np.arange(n) / fs)) * fs
+    worst = int(np.argmax(np.abs(dev)))
+    if abs(dev[worst]) > 0.5:
+        raise TimebaseError(
+            f"{name}: timestamps drift from a uniform grid at fs={fs:.12g} Hz by "
+            f"{dev[worst]:+.3g} samples at {at(worst)}; resample explicitly or split the data")
+    return fs, jmax
+
+
+def validate_timebase(time: ArrayLike, *, rel_tol: float = 1e-3, name: str = "time",
+                      rows: ArrayLike | None = None, row_label: str = "sample") -> float:
+    """Check that time stamps form a uniform time base and return its rate.
+
+    Parameters
+    ----------
+    time : array_like
+        Time stamps [s], 1-D.
+    rel_tol : float, optional
+        Largest allowed step jitter, ``max|dt - median(dt)| / median(dt)``
+        (default 1e-3, i.e. 0.1 %).
+    name : str, optional
+        What the time stamps are (e.g. ``"cut_03.csv, column 'time [ms]'"``),
+        used to start error messages.
+    rows : array_like, optional
+        Label of each stamp in messages (e.g. line numbers of a file); default
+        the 0-based sample index.
+    row_label : str, optional
+        Word for `rows` in messages (``"sample"``, ``"line"``...).
+
+    Returns
+    -------
+    float
+        fs [Hz] = (n - 1) / (t[-1] - t[0]), rounded to 12 significant digits.
+
+    Raises
+    ------
+    TimebaseError
+        Fewer than 2 stamps, non-finite stamps, time not strictly increasing,
+        step jitter above `rel_tol`, or stamps drifting more than half a sample
+        from the uniform grid; the message names the offending row.
+    """
+    return check_timebase(time, rel_tol, name, rows, row_label)[0]
