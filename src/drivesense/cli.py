@@ -238,7 +238,8 @@ def estimate(
 
         truth = rec if est.output_channel in rec.channels else force
         plot_estimates(truth, {method: force}, plot, channel=est.output_channel, sos=lowpass_sos(signal, rec.fs),
-                       window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration))
+                       window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration),
+                       max_freq=min(1.5 * signal.lpf_hz, 0.5 * rec.fs), title=f"{method} estimate: {trace.name}")
         info["plot"] = str(plot)
     table = Table(title=f"{method} estimate of {trace.name}", show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
