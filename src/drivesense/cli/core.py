@@ -1,87 +1,23 @@
-"""The ``drivesense`` command line: a thin layer over the Python API.
-
-Every command prints human-readable output (Rich tables), can write
-machine-readable JSON with ``--json PATH``, and turns bad input into a one-line
-message and exit code 2 (no traceback).
-"""
+"""Core commands: demo, simulate, estimate, friction, bench, axis."""
 
 from __future__ import annotations
 
-import functools
-import json
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-__all__ = ["app", "main"]
+from drivesense.cli.common import accuracy_table, console, friendly, progress_bar, read_trace, write_json
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
-                  help="drivesense: process force from a machine tool's own drive signals.")
-console = Console()
-err_console = Console(stderr=True)
+__all__ = ["register"]
 
-
-def _friendly(fn):
-    """Turn expected errors into ``error: ...`` and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from drivesense.errors import DriveSenseError
-
-        try:
-            return fn(*args, **kwargs)
-        except (DriveSenseError, FileNotFoundError, IsADirectoryError, PermissionError, KeyError) as exc:
-            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-            err_console.print(f"[bold red]error:[/] {escape(str(msg))}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2) from None
-
-    return wrapper
-
-
-def _write_json(path: Optional[Path], payload: dict) -> None:
-    if path is None:
-        return
-    from drivesense.io import atomic_output
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, default=float) + "\n", encoding="utf-8")
-    console.print(f"wrote {path}")
-
-
-def _progress() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=err_console, transient=False)
-
-
-def _accuracy_table(rows: list[dict], title: str) -> Table:
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    table = Table(title=title, caption="NRMSE = RMSE / peak-to-peak of the filtered true force; RMSE [N] in the JSON")
-    table.add_column("scenario")
-    table.add_column("dir")
-    table.add_column("F p2p [N]", justify="right")
-    for m in methods:
-        table.add_column(m, justify="right")
-    by = {}
-    for r in rows:
-        by.setdefault(r["scenario"], {})[r["method"]] = r
-    for scen, per in by.items():
-        first = next(iter(per.values()))
-        cells = [f"{per[m]['nrmse'] * 100:.1f} %" if m in per else "-" for m in methods]
-        table.add_row(scen, first["direction"], f"{first['peak_to_peak_n']:.1f}", *cells)
-    return table
+app = typer.Typer()
 
 
 # ---------------------------------------------------------------------- demo
 @app.command()
-@_friendly
+@friendly
 def demo(
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the results as JSON here.")] = None,
     out: Annotated[Path, typer.Option("--out", help="Folder for the PNG figures (and demo.json).")] = Path("demo_out"),
@@ -99,7 +35,7 @@ def demo(
     out.mkdir(parents=True, exist_ok=True)
     rows, figures = [], []
     conditions = paper_conditions()
-    with _progress() as progress:
+    with progress_bar() as progress:
         task = progress.add_task("simulate + estimate", total=len(conditions))
         for cond in conditions:
             progress.update(task, description=f"{cond.name:<18}")
@@ -114,7 +50,7 @@ def demo(
                 figures.append(str(plot_friction_maps(maps, out / f"friction_maps_{cond.name}.png",
                                                       title=f"Friction from 3 idling runs ({cond.name})")))
             progress.advance(task)
-    console.print(_accuracy_table(rows, "Force estimation on the 10 end-milling conditions (full physics)"))
+    console.print(accuracy_table(rows, "Force estimation on the 10 end-milling conditions (full physics)"))
     summary = summarise(rows)
     vib = max(summary["worst_nrmse"].get("vibration/feed", 0), summary["worst_nrmse"].get("vibration/cross", 0))
     console.print(f"worst VibrationMode NRMSE: {vib * 100:.2f} %   "
@@ -123,12 +59,12 @@ def demo(
     console.print(f"figures: {out}/<scenario>.png, {out}/friction_maps_*.png")
     payload = {"machine": machine_info(), "axis": axis.to_dict(), "signal": signal.to_dict(),
                "accuracy": rows, "summary": summary, "figures": figures}
-    _write_json(json_path or out / "demo.json", payload)
+    write_json(json_path or out / "demo.json", payload)
 
 
 # ------------------------------------------------------------------ simulate
 @app.command()
-@_friendly
+@friendly
 def simulate(
     scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Output .nc (lossless) or .csv.")] = None,
@@ -166,12 +102,6 @@ def _save_recording(rec, out: Path) -> None:
 
 
 # ------------------------------------------------------------------ estimate
-def _read(path: Path, axis_name: str):
-    from drivesense.io import read_recording
-
-    return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)
-
-
 def _parse_window(text: str) -> tuple[float, float]:
     from drivesense.errors import ConfigError
 
@@ -185,7 +115,7 @@ def _parse_window(text: str) -> tuple[float, float]:
 
 
 @app.command()
-@_friendly
+@friendly
 def estimate(
     trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
     axis_file: Annotated[Path, typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")],
@@ -205,12 +135,12 @@ def estimate(
 
     axis, signal = read_axis_file(axis_file)
     est = make_estimator(method, axis, signal, axis_name=axis_name)
-    rec = _read(trace, axis_name)
+    rec = read_trace(trace, axis_name)
     if idle and tare:
         raise ConfigError("give either --idle runs or --tare, not both")
     info: dict = {"method": method, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples}
     if idle:
-        est.fit([_read(p, axis_name) for p in idle])
+        est.fit([read_trace(p, axis_name) for p in idle])
         info["compensation"] = "friction map"
         info["friction_map_repeatability_n"] = est.friction_map.repeatability_rms
     elif tare:
@@ -252,12 +182,12 @@ def estimate(
         table.add_row("vs reference", f"RMSE {s['rmse_n']:.2f} N, NRMSE {s['nrmse'] * 100:.2f} %")
     console.print(table)
     console.print(f"wrote {out}")
-    _write_json(json_path, info)
+    write_json(json_path, info)
 
 
 # ------------------------------------------------------------------ friction
 @app.command()
-@_friendly
+@friendly
 def friction(
     idle: Annotated[list[Path], typer.Argument(help="Idle (air-cut) runs over the same trajectory.")],
     axis_file: Annotated[Path, typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")],
@@ -276,7 +206,7 @@ def friction(
 
     axis, signal = read_axis_file(axis_file)
     est = make_estimator(method, axis, signal, axis_name=axis_name)
-    est.fit([_read(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
+    est.fit([read_trace(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
     fmap = est.friction_map
     peaks = dominant_wavelengths(*wavelength_spectrum(fmap.force, fmap.position), 5)
     info = {"method": method, "runs": len(idle), "bins": int(fmap.position.size), "bin_width_m": fmap.bin_width,
@@ -296,12 +226,12 @@ def friction(
 
         plot_friction_maps({method: fmap}, plot)
         info["plot"] = str(plot)
-    _write_json(json_path, info)
+    write_json(json_path, info)
 
 
 # --------------------------------------------------------------------- bench
 @app.command()
-@_friendly
+@friendly
 def bench(
     kind: Annotated[str, typer.Argument(help="accuracy | speed | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
@@ -309,12 +239,12 @@ def bench(
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
     from drivesense.bench import run_bench
 
-    with _progress() as progress:
+    with progress_bar() as progress:
         total = {"accuracy": 10, "speed": 1, "all": 11}.get(kind, 1)
         task = progress.add_task(f"bench {kind}", total=total)
         result = run_bench(kind, progress=lambda label: progress.advance(task))
     if "accuracy" in result:
-        console.print(_accuracy_table(result["accuracy"], "Accuracy (full physics)"))
+        console.print(accuracy_table(result["accuracy"], "Accuracy (full physics)"))
     if "speed" in result:
         sp = result["speed"]
         table = Table(title="Speed (same-run baselines)", show_header=False)
@@ -322,12 +252,12 @@ def bench(
                     "stream_max_dev_n", "simulator_realtime_factor", "estimator_peak_mb", "stream_state_bytes"):
             table.add_row(key, f"{sp[key]:.4g}")
         console.print(table)
-    _write_json(json_path, result)
+    write_json(json_path, result)
 
 
 # ---------------------------------------------------------------------- axis
 @app.command("axis")
-@_friendly
+@friendly
 def axis_cmd(
     out: Annotated[Path, typer.Option("--out", help="Where to write the AXIS.toml.")],
     preset: Annotated[str, typer.Option(help="Parameter set: table1 (the first paper's stage).")] = "table1",
@@ -344,10 +274,7 @@ def axis_cmd(
     console.print(f"wrote {out}")
 
 
-def main() -> None:
-    """Entry point of the ``drivesense`` script."""
-    app()
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+def register(root: typer.Typer) -> None:
+    """Add this module's commands to the root application."""
+    for info in app.registered_commands:
+        root.registered_commands.append(info)

@@ -1,0 +1,29 @@
+"""The ``drivesense`` command line: a thin layer over the Python API.
+
+Every command prints human-readable output (Rich tables), can write
+machine-readable JSON with ``--json PATH``, and turns bad input into a one-line
+message and exit code 2 (no traceback).  Commands live in one module per group.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from drivesense.cli import core, identify_frf, identify_linear
+
+__all__ = ["app", "identify_app", "main"]
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="drivesense: process force from a machine tool's own drive signals.")
+core.register(app)
+
+identify_app = typer.Typer(no_args_is_help=True,
+                           help="Identify axis parameters from measurements and write the parameter file.")
+identify_frf.register(identify_app)
+identify_linear.register(identify_app)
+app.add_typer(identify_app, name="identify")
+
+
+def main() -> None:
+    """Entry point of the ``drivesense`` script."""
+    app()

@@ -1,0 +1,78 @@
+"""Shared pieces of the command line: error handling, JSON output, progress bars, reading traces."""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+__all__ = ["console", "err_console", "friendly", "write_json", "progress_bar", "accuracy_table", "read_trace"]
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def friendly(fn):
+    """Turn expected errors into ``error: ...`` and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        from drivesense.errors import DriveSenseError
+
+        try:
+            return fn(*args, **kwargs)
+        except (DriveSenseError, FileNotFoundError, IsADirectoryError, PermissionError, KeyError) as exc:
+            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            err_console.print(f"[bold red]error:[/] {escape(str(msg))}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+
+    return wrapper
+
+
+def write_json(path: Optional[Path], payload: dict) -> None:
+    if path is None:
+        return
+    from drivesense.io import atomic_output
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, default=float) + "\n", encoding="utf-8")
+    console.print(f"wrote {path}")
+
+
+def progress_bar() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=err_console, transient=False)
+
+
+def accuracy_table(rows: list[dict], title: str) -> Table:
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    table = Table(title=title, caption="NRMSE = RMSE / peak-to-peak of the filtered true force; RMSE [N] in the JSON")
+    table.add_column("scenario")
+    table.add_column("dir")
+    table.add_column("F p2p [N]", justify="right")
+    for m in methods:
+        table.add_column(m, justify="right")
+    by = {}
+    for r in rows:
+        by.setdefault(r["scenario"], {})[r["method"]] = r
+    for scen, per in by.items():
+        first = next(iter(per.values()))
+        cells = [f"{per[m]['nrmse'] * 100:.1f} %" if m in per else "-" for m in methods]
+        table.add_row(scen, first["direction"], f"{first['peak_to_peak_n']:.1f}", *cells)
+    return table
+
+
+def read_trace(path: Path, axis_name: str = "x"):
+    """Read a CSV (bare channel names get the axis prefix) or a saved recording."""
+    from drivesense.io import read_recording
+
+    return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)

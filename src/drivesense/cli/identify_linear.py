@@ -1,0 +1,11 @@
+"""``drivesense identify linear``: linear-motor axes by the four-step method."""
+
+from __future__ import annotations
+
+import typer
+
+__all__ = ["register"]
+
+
+def register(identify_app: typer.Typer) -> None:
+    """Add this module's command to the ``identify`` group."""
