@@ -186,4 +186,5 @@ def test_harmonic_error_only_below_cutoff(ref):
     below = score_estimate(est_rec(est), ref, tooth_pass_hz=33.3, cutoff_hz=80.0)
     assert below.harmonic_error < 5e-3  # only least-squares leakage from the unfitted 99.9 Hz
     incl = score_estimate(est_rec(est), ref, tooth_pass_hz=33.3, cutoff_hz=120.0)
-    assert incl.harmonic_error == pytest.approx(2.0 / 3.0, rel=1e-3)  # (0 + 0 + 2) / 3
+    # amplitude-weighted: sum |A_est - A_ref| / sum A_ref = (0 + 0 + 2) / (8 + 3 + 1)
+    assert incl.harmonic_error == pytest.approx(2.0 / 12.0, rel=1e-3)

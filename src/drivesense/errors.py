@@ -18,6 +18,7 @@ __all__ = [
     "ConfigError",
     "CoverageError",
     "NotFittedError",
+    "IdentificationError",
 ]
 
 
@@ -58,3 +59,7 @@ class CoverageError(DriveSenseError, ValueError):
 
 class NotFittedError(DriveSenseError, RuntimeError):
     """A method needs ``fit`` (or a tare) before it can be used this way."""
+
+
+class IdentificationError(DriveSenseError, ValueError):
+    """Measurements cannot determine a parameter (named in the message)."""

@@ -15,7 +15,7 @@ from drivesense.dsp import amplitude_spectrum, dominant_wavelengths, wavelength_
 from drivesense.recording import Recording
 from drivesense.score import aligned_reference
 
-__all__ = ["plot_estimates", "plot_friction_maps"]
+__all__ = ["plot_estimates", "plot_friction_maps", "plot_frf_fit"]
 
 _COLOURS = {"truth": "black", "current": "tab:gray", "rigid": "tab:orange", "medob": "tab:green",
             "vibration": "tab:blue"}
@@ -142,4 +142,48 @@ def plot_friction_maps(maps, path, *, title: str | None = None) -> Path:
         ax_w.set_ylabel("amplitude [N]")
         ax_w.grid(alpha=0.3, which="both")
     fig.suptitle(title or "Friction maps from idling runs")
+    return _save(plt, fig, path)
+
+
+def plot_frf_fit(fit, path, *, title: str | None = None) -> Path:
+    """Write a PNG: measured and fitted FRFs (magnitude, phase) and the coherence (Fig. 5 style).
+
+    Parameters
+    ----------
+    fit : drivesense.identify.frf.FRFFit
+        A fit and the data it was fitted to.
+    path : str or Path
+        Output PNG.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    plt = _pyplot()
+    meas = fit.measured
+    f = meas.freq
+    model_m, model_t = fit.model()
+    fig, (ax_mag, ax_ph, ax_coh) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
+                                                gridspec_kw={"height_ratios": [3, 2, 1]})
+    for label, data, model, col in (("motor", meas.motor, model_m, "tab:blue"),
+                                    ("table", meas.table, model_t, "tab:red")):
+        ax_mag.loglog(f, np.abs(data), color=col, lw=0.8, ls="--", label=f"{label}: measured")
+        ax_mag.loglog(f, np.abs(model), color=col, lw=1.4, label=f"{label}: model")
+        model_phase = np.unwrap(np.angle(model))
+        # measured phase drawn relative to the model's branch, so noise cannot make it wrap away
+        ax_ph.semilogx(f, np.degrees(model_phase + np.angle(data / model)), color=col, lw=0.8, ls="--")
+        ax_ph.semilogx(f, np.degrees(model_phase), color=col, lw=1.4)
+    ax_coh.semilogx(f, meas.coherence_motor, color="tab:blue", lw=0.8)
+    ax_coh.semilogx(f, meas.coherence_table, color="tab:red", lw=0.8)
+    ax_mag.set_ylabel("acceleration / motor thrust [(m/s^2)/N]")
+    ax_mag.legend(fontsize=8)
+    ax_ph.set_ylabel("phase [deg]")
+    ax_coh.set_ylabel("coherence")
+    ax_coh.set_ylim(0, 1.05)
+    ax_coh.set_xlabel("frequency [Hz]")
+    for ax in (ax_mag, ax_ph, ax_coh):
+        ax.grid(alpha=0.3, which="both")
+    fig.suptitle(title or f"FRF fit ({meas.reference} reference, normalised residual {fit.normalised_rms:.2f})")
     return _save(plt, fig, path)

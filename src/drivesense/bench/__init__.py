@@ -4,15 +4,20 @@ from drivesense.bench.accuracy import ConditionResult, run_accuracy, run_conditi
 from drivesense.bench.machine import machine_info
 from drivesense.bench.speed import run_speed
 
-__all__ = ["run_accuracy", "run_condition", "ConditionResult", "run_speed", "machine_info", "run_bench"]
+__all__ = ["run_accuracy", "run_condition", "ConditionResult", "run_speed", "machine_info", "run_bench",
+           "BENCH_KINDS", "summarise"]
+
+
+#: Parts of the bench, in the order ``all`` runs them.
+BENCH_KINDS = ("accuracy", "speed", "identify")
 
 
 def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> dict:
-    """Run ``accuracy``, ``speed`` or ``all``; returns the bench JSON as a dict.
+    """Run one part of the benchmark suite (or ``all``); returns the bench JSON as a dict.
 
     Parameters
     ----------
-    kind : {"accuracy", "speed", "all"}
+    kind : {"accuracy", "speed", "identify", "all"}
         Which part to run.
     axis : BallScrewAxis, optional
         Estimator axis parameters (default: Table 1).
@@ -25,8 +30,8 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
     from drivesense.estimate import SignalParams
     from drivesense.machine.presets import table1_axis
 
-    if kind not in ("accuracy", "speed", "all"):
-        raise ConfigError(f"unknown bench {kind!r}; choose accuracy, speed or all")
+    if kind not in (*BENCH_KINDS, "all"):
+        raise ConfigError(f"unknown bench {kind!r}; choose {', '.join(BENCH_KINDS)} or all")
     axis = axis or table1_axis()
     signal = signal or SignalParams()
     out: dict = {"machine": machine_info(), "physics": "full simulator physics (see drivesense.sim.scenarios)"}
@@ -38,6 +43,10 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
         out["speed"] = run_speed(axis, signal)
         if progress:
             progress("speed")
+    if kind in ("identify", "all"):
+        from drivesense.bench.identify import run_frf_bench
+
+        out["identify"] = run_frf_bench(progress=progress)
     return out
 
 

@@ -82,7 +82,7 @@ def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
 
 
 def run_accuracy(axis: BallScrewAxis, signal: SignalParams, settings: ScenarioSettings | None = None, *,
-                 conditions: list[CutCondition] | None = None, seed: int = 1,
+                 conditions: list[CutCondition] | None = None, seed: int = 1, methods=tuple(METHODS),
                  progress: Callable[[str], None] | None = None,
                  keep: bool = False) -> tuple[list[dict], list[ConditionResult]]:
     """Run :func:`run_condition` over the paper's ten conditions.
@@ -97,6 +97,8 @@ def run_accuracy(axis: BallScrewAxis, signal: SignalParams, settings: ScenarioSe
         Default :func:`~drivesense.sim.scenarios.paper_conditions`.
     seed : int
         Seed of the cuts.
+    methods : sequence of str
+        Estimators to run (default all).
     progress : callable, optional
         Called with each condition's name when it is done.
     keep : bool
@@ -110,7 +112,7 @@ def run_accuracy(axis: BallScrewAxis, signal: SignalParams, settings: ScenarioSe
     """
     rows, results = [], []
     for cond in conditions or paper_conditions():
-        res = run_condition(cond, axis, signal, settings, seed=seed)
+        res = run_condition(cond, axis, signal, settings, seed=seed, methods=methods)
         rows.extend(res.rows)
         if keep:
             results.append(res)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich import box
 from rich.table import Table
 
 from drivesense.cli.common import accuracy_table, console, friendly, progress_bar, read_trace, write_json
@@ -82,11 +83,17 @@ def simulate(
         return
     if scenario is None or out is None:
         raise ConfigError("give a SCENARIO and --out FILE (or --list)")
-    cond, is_idle = condition_by_name(scenario)
     settings = ScenarioSettings().as_ideal() if ideal else ScenarioSettings()
-    rec = simulate_idle(cond, settings, repeats=1, seed=seed)[0] if is_idle else simulate_cut(cond, settings, seed=seed)
+    if scenario.startswith("frf_"):
+        from drivesense.sim.scenarios import simulate_frf_excitation
+
+        rec = simulate_frf_excitation(scenario[4:], settings, seed=seed)
+    else:
+        cond, is_idle = condition_by_name(scenario)
+        rec = (simulate_idle(cond, settings, repeats=1, seed=seed)[0] if is_idle
+               else simulate_cut(cond, settings, seed=seed))
     _save_recording(rec, out)
-    console.print(f"wrote {out}: {rec!r}")
+    console.print(f"wrote {out}: {rec!r}", markup=False)
 
 
 def _save_recording(rec, out: Path) -> None:
@@ -233,14 +240,14 @@ def friction(
 @app.command()
 @friendly
 def bench(
-    kind: Annotated[str, typer.Argument(help="accuracy | speed | all")] = "all",
+    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
     from drivesense.bench import run_bench
 
     with progress_bar() as progress:
-        total = {"accuracy": 10, "speed": 1, "all": 11}.get(kind, 1)
+        total = {"accuracy": 10, "speed": 1, "identify": 4, "all": 15}.get(kind, 1)
         task = progress.add_task(f"bench {kind}", total=total)
         result = run_bench(kind, progress=lambda label: progress.advance(task))
     if "accuracy" in result:
@@ -252,6 +259,20 @@ def bench(
                     "stream_max_dev_n", "simulator_realtime_factor", "estimator_peak_mb", "stream_state_bytes"):
             table.add_row(key, f"{sp[key]:.4g}")
         console.print(table)
+    if "identify" in result:
+        ident = result["identify"]
+        table = Table(title="FRF identification vs truth: error in % (T_b: in ms)", box=box.SIMPLE, padding=(0, 1))
+        names = ("J_r", "M_t", "C_t", "C_k", "D_r", "K_r", "T_b")
+        table.add_column("excitation")
+        for name in names:
+            table.add_column(name, justify="right")
+        table.add_column("ok")
+        for row in ident["frf"]:
+            cells = [f"{row['error'][n] * 1e3:+.4f}" if n == "T_b" else f"{row['error'][n] * 100:+.2f}" for n in names]
+            table.add_row(row["excitation"], *cells, "yes" if row["all_within_targets"] else "NO")
+        console.print(table)
+        console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
+                      f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions")
     write_json(json_path, result)
 
 

@@ -35,7 +35,7 @@ import numbers
 from dataclasses import dataclass, fields
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from drivesense.errors import ConfigError, InvalidSignalError
 
@@ -370,14 +370,14 @@ def material_removal_rate(cut, feed_speed):
     return float(q) if q.ndim == 0 else q
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _forces_kernel(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
                    phi_st, phi_ex, half_d, k, dz, fx, fy, fz, tq):  # pragma: no cover - numba
     """Accumulate the slice forces of every flute into fx, fy, fz, tq (in place)."""
     two_pi = 2.0 * math.pi
     ktc, krc, kac, kte, kre, kae = k[0], k[1], k[2], k[3], k[4], k[5]
     nf, ns = off.shape
-    for i in range(angle.size):
+    for i in prange(angle.size):
         a = angle[i]
         sa = math.sin(a)
         ca = math.cos(a)

@@ -43,7 +43,7 @@ def table1_stage() -> StagePhysics:
     LuGre with ``F_c = 5 N``, a 10 um presliding range, ripple at 25 mm and
     2.2 mm, and 0.5 % of the process's normal force added.  Cogging at 72 and
     144 cycles per motor revolution, screw lead error of 0.4 um at the lead,
-    3 % torque-constant droop at rated current, and a 30 000 rad/s second pole
+    3 % torque-constant droop at rated current, and a 60 000 rad/s second pole
     in the current loop.
     """
     axis = table1_axis()
@@ -67,5 +67,5 @@ def table1_stage() -> StagePhysics:
         kt_droop=0.03,
         rated_current=2.8,
         max_current=8.4,
-        current_loop_extra_pole=3.0e4,
+        current_loop_extra_pole=6.0e4,
     )

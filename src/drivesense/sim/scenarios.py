@@ -30,7 +30,7 @@ from drivesense.sim.servo import ServoConfig, run_servo
 from drivesense.sim.toolpath import constant_feed, standstill
 
 __all__ = ["CutCondition", "ScenarioSettings", "paper_conditions", "simulate_cut", "simulate_idle",
-           "scenario_names", "condition_by_name"]
+           "simulate_frf_excitation", "scenario_names", "condition_by_name"]
 
 
 @dataclass(frozen=True)
@@ -123,9 +123,11 @@ def paper_conditions(axial_depth: float = 0.5e-3) -> list[CutCondition]:
 
 
 def scenario_names() -> list[str]:
-    """Names accepted by :func:`condition_by_name` (and ``drivesense simulate``)."""
+    """Names accepted by ``drivesense simulate``: the cuts, their idle runs and the FRF excitations."""
+    from drivesense.sim.excitation import EXCITATIONS
+
     return [c.name for c in paper_conditions()] + [f"idle_{c.name}" for c in paper_conditions()
-                                                   if c.direction == "feed"]
+                                                   if c.direction == "feed"] + [f"frf_{k}" for k in EXCITATIONS]
 
 
 def condition_by_name(name: str) -> tuple[CutCondition, bool]:
@@ -142,6 +144,23 @@ def _y_ripple(y: np.ndarray) -> np.ndarray:
     """Friction ripple of the (unsimulated) Y drive [N] versus its position [m]."""
     rip = (Ripple(5e-3, 3.0, 0.5), Ripple(1.25e-3, 1.0, 1.7))
     return sum(r.amplitude * np.sin(2 * math.pi * y / r.wavelength + r.phase) for r in rip)
+
+
+def _process_forces(cond: CutCondition, settings: ScenarioSettings, times: np.ndarray, feed_axis, omega: float,
+                    phase0: float, t_grid: np.ndarray):
+    """Process force on the table along machine X, Y, Z [N] at ``times`` [s]."""
+    tool = settings.tool
+    feed_pos = np.interp(times, t_grid, feed_axis.position)
+    progress = feed_pos - np.interp(settings.t_contact, t_grid, feed_axis.position) - tool.diameter / 2
+    c = feed_per_tooth(cond.feed_speed, omega, tool.flutes)
+    mf = milling_forces(tool, settings.coefficients,
+                        MillingCut(cond.radial_depth, cond.axial_depth, cond.mode, axial_slices=8),
+                        omega * times + phase0, c, feed_progress=progress)
+    # tool frame: x along the tool's motion relative to the workpiece (opposite the table's),
+    # y = z x x.  The table (workpiece) feels minus the force on the tool.
+    if cond.direction == "feed":
+        return mf.feed, mf.normal, -mf.axial
+    return -mf.normal, mf.feed, -mf.axial
 
 
 def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: bool, label: str) -> Recording:
@@ -162,26 +181,17 @@ def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: boo
         raise ValueError(f"condition {cond.name!r}: direction must be 'feed' or 'cross'")
     tool = settings.tool
     omega = cond.spindle_rpm * 2 * math.pi / 60.0
-    forces_x = np.zeros(n)
-    forces_y = np.zeros(n)
-    forces_z = np.zeros(n)
+    phase0 = rng.uniform(0, 2 * math.pi)
+    # the process force at every plant sub-step; the recorded truth is its value at the control instants
+    t_fine = np.arange(n * cfg.substeps) / (fs * cfg.substeps)
     if cutting:
-        progress = feed_axis.position - np.interp(settings.t_contact, t, feed_axis.position) - tool.diameter / 2
-        angle = omega * t + rng.uniform(0, 2 * math.pi)
-        c = feed_per_tooth(cond.feed_speed, omega, tool.flutes)
-        mf = milling_forces(tool, settings.coefficients,
-                            MillingCut(cond.radial_depth, cond.axial_depth, cond.mode, axial_slices=8), angle, c,
-                            feed_progress=progress)
-        # tool frame: x along the tool's motion relative to the workpiece (opposite the table's),
-        # y = z x x.  The table (workpiece) feels minus the force on the tool.
-        if cond.direction == "feed":
-            forces_x, forces_y = mf.feed, mf.normal
-        else:
-            forces_x, forces_y = -mf.normal, mf.feed
-        forces_z = -mf.axial
-    table_force = forces_x.copy()
+        fine_x, fine_y, fine_z = _process_forces(cond, settings, t_fine, feed_axis, omega, phase0, t)
+    else:
+        fine_x = fine_y = fine_z = np.zeros(t_fine.size)
+    forces_x, forces_y, forces_z = (np.ascontiguousarray(f[::cfg.substeps]) for f in (fine_x, fine_y, fine_z))
+    table_force = fine_x.copy()
     if cond.direction == "cross" and settings.coupling_gain:
-        table_force += settings.coupling_gain * _y_ripple(y_pos)
+        table_force += settings.coupling_gain * _y_ripple(np.interp(t_fine, t, y_pos))
     normal_load = -forces_z
     enc = RotaryEncoder().ideal() if settings.ideal else RotaryEncoder()
     scl = LinearScale().ideal() if settings.ideal else LinearScale()
@@ -251,3 +261,75 @@ def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, 
     """Idling runs: the cut's trajectory without cutting, ``repeats`` times (Sec. 4)."""
     settings = settings or ScenarioSettings()
     return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}") for k in range(repeats)]
+
+
+def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings | None = None, *,
+                            amplitude: float = 0.3, duration: float = 8.0, feed_speed: float = 10e-3,
+                            f0: float = 5.0, f1: float = 2000.0, seed: int = 0) -> Recording:
+    """Excite the X axis through its current reference while it moves at constant speed.
+
+    The axis moves at ``feed_speed`` (sliding friction, no stick-slip) under
+    closed-loop control; from the end of the acceleration ramp on, the
+    excitation is added to the controller's current reference.
+
+    Parameters
+    ----------
+    kind : {"multisine", "chirp", "prbs"}
+        Excitation signal.
+    settings : ScenarioSettings, optional
+        Physics and signal chain (default: full physics).
+    amplitude : float
+        Peak excitation [A].
+    duration : float
+        Trace length [s].
+    feed_speed : float
+        Axis speed during the measurement [m/s].
+    f0, f1 : float
+        Excitation band [Hz].
+    seed : int
+        Seed.
+
+    Returns
+    -------
+    Recording
+        ``x_current_ref`` (controller output plus excitation) [A],
+        ``x_current_excitation`` [A], ``x_current`` [A], ``x_motor_angle`` [rad],
+        ``x_table_position`` [m]; ``meta["excitation_window"]`` [s] and the
+        true parameters in ``meta["true_axis"]`` / ``meta["true_signal"]``.
+    """
+    from drivesense.sim.excitation import make_excitation
+
+    settings = settings or ScenarioSettings()
+    rng = np.random.default_rng(seed)
+    cfg = settings.servo
+    fs = cfg.fs
+    stage = settings.stage if settings.ideal else settings.stage.varied(rng, settings.run_spread)
+    traj = constant_feed(duration, fs, feed_speed)
+    n = traj.position.size
+    t_on = round(traj.cruise[0] + settings.settle, 3)
+    i_on = int(round(t_on * fs))
+    excitation = np.zeros(n)
+    excitation[i_on:] = make_excitation(kind, (n - i_on) / fs, fs, amplitude, f0=f0, f1=f1,
+                                        limit=stage.max_current, seed=seed)
+    enc = RotaryEncoder().ideal() if settings.ideal else RotaryEncoder()
+    scl = LinearScale().ideal() if settings.ideal else LinearScale()
+    z = np.zeros(n)
+    res = run_servo(stage, cfg, traj.position, traj.velocity, traj.acceleration, z, z, encoder=enc, scale=scl,
+                    seed=int(rng.integers(2**31)), current_excitation=excitation)
+    meta = {
+        "name": f"frf_{kind}",
+        "scenario": f"frf_{kind}",
+        "kind": "frf",
+        "excitation": {"kind": kind, "amplitude_a": amplitude, "band_hz": [f0, f1], "feed_speed_m_s": feed_speed,
+                       "period_s": 1.0 if kind == "multisine" else None},
+        "excitation_window": [t_on, duration],
+        "physics": "ideal" if settings.ideal else "full",
+        "seed": int(seed),
+        "true_axis": stage.axis.to_dict(),
+        "true_signal": {"T_a": cfg.T_a, "T_b": cfg.T_b, "omega_cc": cfg.omega_cc},
+        "provenance": [f"drivesense.sim frf_{kind}, seed {seed}"],
+    }
+    return Recording.from_arrays({"x_current_ref": res.current_ref, "x_current_excitation": excitation,
+                                  "x_current": res.current, "x_motor_angle": res.motor_angle,
+                                  "x_table_position": res.table_position}, fs=fs, meta=meta,
+                                 units={"x_current_excitation": "A"})

@@ -55,7 +55,7 @@ class ServoConfig:
     """
 
     fs: float = 10_000.0
-    substeps: int = 5
+    substeps: int = 3
     position_gain: float = 150.0
     velocity_gain: float = 5.5e4
     velocity_integral: float = 5.0e6
@@ -92,7 +92,8 @@ class ServoResult:
 
 def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_ff, accel_ff,
               table_force, normal_load, *, encoder: RotaryEncoder | None = None,
-              scale: LinearScale | None = None, seed: int = 0, enabled: bool = True) -> ServoResult:
+              scale: LinearScale | None = None, seed: int = 0, enabled: bool = True,
+              current_excitation=None) -> ServoResult:
     """Simulate the axis under closed-loop control.
 
     Parameters
@@ -105,7 +106,10 @@ def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_f
         Table position reference [m], velocity [m/s] and acceleration [m/s^2]
         feedforward at the control instants.
     table_force : array_like
-        External (process) force on the table along +x [N] at the control instants.
+        External (process) force on the table along +x [N]: either at the
+        control instants (length ``n``; linearly interpolated) or at every
+        sub-step start ``(k + j / substeps) / fs`` (length ``n * substeps``);
+        each sub-step applies the mean of its start and end values.
     normal_load : array_like
         Extra normal load on the guides [N] (raises guide friction).
     encoder, scale : RotaryEncoder, LinearScale, optional
@@ -113,7 +117,10 @@ def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_f
     seed : int
         Seed of the noise generators.
     enabled : bool
-        ``False`` opens the loop (zero current): for free-response tests.
+        ``False`` opens the loop (only the excitation drives the motor): for free-response tests.
+    current_excitation : array_like, optional
+        Signal added to the controller's current reference [A] before the
+        current limit (FRF excitation); part of the recorded ``current_ref``.
 
     Returns
     -------
@@ -121,11 +128,18 @@ def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_f
     """
     encoder = encoder or RotaryEncoder()
     scale = scale or LinearScale()
+    n = np.size(position_ref)
+    excitation = np.zeros(n) if current_excitation is None else current_excitation
+    fine_force = np.ascontiguousarray(table_force, dtype=np.float64)
+    if fine_force.size not in (n, n * config.substeps):
+        raise ValueError(f"run_servo: all input arrays must have the same length ({n}); table_force may "
+                         f"also have one sample per sub-step ({n * config.substeps}), got {fine_force.size}")
+    coarse_force = fine_force if fine_force.size == n else np.zeros(n)
     arrays = [np.ascontiguousarray(a, dtype=np.float64)
-              for a in (position_ref, velocity_ff, accel_ff, table_force, normal_load)]
-    n = arrays[0].size
+              for a in (position_ref, velocity_ff, accel_ff, coarse_force, normal_load, excitation)]
     if any(a.size != n for a in arrays):
         raise ValueError("run_servo: all input arrays must have the same length")
+    fine = fine_force if fine_force.size != n else np.zeros(0)
     ax = stage.axis
     packed = stage.pack()
     plant = np.array([ax.M_r, ax.M_t, ax.C_r, ax.C_t, ax.C_k, ax.K_r, ax.R, ax.K_t,
@@ -135,10 +149,31 @@ def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_f
                      config.velocity_integral, config.accel_feedforward_mass, config.T_a, config.T_b,
                      config.omega_cc, config.current_noise, config.current_sensor_noise,
                      1.0 if enabled else 0.0], dtype=np.float64)
-    out = _servo_loop(plant, ctrl, packed["motor_friction"], packed["guide_friction"],
+    phi, gamma = _exact_step(ax, 1.0 / (config.fs * config.substeps))
+    out = _servo_loop(plant, ctrl, phi, gamma, packed["motor_friction"], packed["guide_friction"],
                       packed["cogging"], packed["lead_error"], encoder.pack(), scale.pack(),
-                      *arrays, np.int64(seed))
+                      *arrays, fine, np.int64(seed))
     return ServoResult(*out)
+
+
+def _exact_step(axis, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation over ``dt`` of the linear mechanics for inputs held constant.
+
+    State ``[x_m, x_t, v_m, v_t]``, inputs ``[force on motor side, force on table]``
+    (everything the linear model leaves out: thrust, friction, cogging, lead
+    error, process force).
+    """
+    from scipy.linalg import expm
+
+    m = axis.matrices()
+    minv = np.linalg.inv(m.M)
+    aug = np.zeros((6, 6))
+    aug[0:2, 2:4] = np.eye(2)
+    aug[2:4, 0:2] = -minv @ m.K
+    aug[2:4, 2:4] = -minv @ m.C
+    aug[2:4, 4:6] = minv
+    e = expm(aug * dt)
+    return np.ascontiguousarray(e[0:4, 0:4]), np.ascontiguousarray(e[0:4, 4:6])
 
 
 @njit(cache=True)
@@ -169,8 +204,8 @@ def _interp_hist(hist: np.ndarray, pos: float) -> float:
 
 
 @njit(cache=True)
-def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
-                x_ref, v_ff, a_ff, f_ext, n_load, seed):
+def _servo_loop(plant, ctrl, phi, gamma, fric_m, fric_g, cog, lead_err, enc, scl,
+                x_ref, v_ff, a_ff, f_ext, n_load, i_exc, f_fine, seed):
     np.random.seed(seed)
     M_r, M_t, C_r, C_t, C_k, K_r, R, K_t = plant[0], plant[1], plant[2], plant[3], plant[4], plant[5], plant[6], plant[7]
     droop, i_rated, i_max, pole2 = plant[8], plant[9], plant[10], plant[11]
@@ -210,7 +245,8 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
     i2 = 0.0
     integ = 0.0
     theta_prev = 0.0
-    a1 = math.exp(-w_cc * dt)
+    a1 = math.exp(-w_cc * dt) if w_cc > 0.0 else 0.0
+    m1 = (1.0 - a1) / (w_cc * dt) if w_cc > 0.0 else 0.0  # mean of a first-order step response over dt
     a2 = math.exp(-pole2 * dt) if pole2 > 0.0 else 0.0
     tb_samples = T_b * fs
     ta_samples = T_a * fs
@@ -238,13 +274,13 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
         e = v_cmd - v_meas
         integ += Kvi * e * T
         f_cmd = Kvp * e + integ + m_ff * a_ff[k]
-        i_ref = f_cmd * R / K_t
+        i_ref = f_cmd * R / K_t + i_exc[k]
         if i_ref > i_max:
             i_ref = i_max
         elif i_ref < -i_max:
             i_ref = -i_max
         if not closed:
-            i_ref = 0.0
+            i_ref = i_exc[k]
             integ = 0.0
         out_iref[k] = i_ref
         out_theta[k] = theta_meas
@@ -265,14 +301,16 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
             t_rel = k + j / nsub - ta_samples  # driver input index (zero-order hold)
             idx = int(math.floor(t_rel + 1e-9))
             i_in = out_iref[idx] if idx >= 0 else 0.0
-            # semi-implicit Euler takes every force at the start of the sub-step: the current too
-            i_start = i2 if pole2 > 0.0 else i1
-            i1 = i_in + (i1 - i_in) * a1
+            # the linear mechanics are stepped exactly (phi, gamma); everything else is held over the
+            # sub-step at its mean (current) or start value (friction, cogging, lead error)
             if pole2 > 0.0:
+                i_start = i2
+                i1 = i_in + (i1 - i_in) * a1
                 i2 = i1 + (i2 - i1) * a2
-                i_act = i_start
+                i_act = 0.5 * (i_start + i2)
             else:
-                i_act = i_start
+                i_act = i_in + (i1 - i_in) * m1
+                i1 = i_in + (i1 - i_in) * a1
             i_act += i_dist
             kt = K_t * (1.0 - droop * (i_act / i_rated) ** 2)
             f_motor = kt * i_act / R + cog_f
@@ -284,13 +322,21 @@ def _servo_loop(plant, ctrl, fric_m, fric_g, cog, lead_err, enc, scl,
                 z_g, ff_g = lugre_step(fric_g, z_g, v_t, fc_g, dt)
             else:
                 ff_g = 0.0
-            f_spring = K_r * (x_m + lead - x_t) + C_k * (v_m - v_t)
-            frac = j / nsub
-            f_cut = f0 + frac * (f1 - f0)
-            a_m = (f_motor - ff_m - C_r * v_m - f_spring) / M_r
-            a_t = (f_spring - C_t * v_t - ff_g + f_cut) / M_t
-            v_m += a_m * dt
-            v_t += a_t * dt
-            x_m += v_m * dt
-            x_t += v_t * dt
+            if f_fine.size > 0:
+                i_f = k * nsub + j
+                f_cut = 0.5 * (f_fine[i_f] + f_fine[i_f + 1]) if i_f + 1 < f_fine.size else f_fine[i_f]
+            else:  # Catmull-Rom through the neighbouring samples, at the sub-step midpoint
+                u = (j + 0.5) / nsub
+                fm1 = f_ext[k - 1] if k > 0 else f0
+                f2 = f_ext[k + 2] if k + 2 < n else f1
+                f_cut = 0.5 * (2.0 * f0 + (f1 - fm1) * u + (2.0 * fm1 - 5.0 * f0 + 4.0 * f1 - f2) * u * u
+                               + (3.0 * f0 - fm1 - 3.0 * f1 + f2) * u * u * u)
+            u_m = f_motor - ff_m - K_r * lead
+            u_t = f_cut - ff_g + K_r * lead
+            x_m, x_t, v_m, v_t = (
+                phi[0, 0] * x_m + phi[0, 1] * x_t + phi[0, 2] * v_m + phi[0, 3] * v_t + gamma[0, 0] * u_m + gamma[0, 1] * u_t,
+                phi[1, 0] * x_m + phi[1, 1] * x_t + phi[1, 2] * v_m + phi[1, 3] * v_t + gamma[1, 0] * u_m + gamma[1, 1] * u_t,
+                phi[2, 0] * x_m + phi[2, 1] * x_t + phi[2, 2] * v_m + phi[2, 3] * v_t + gamma[2, 0] * u_m + gamma[2, 1] * u_t,
+                phi[3, 0] * x_m + phi[3, 1] * x_t + phi[3, 2] * v_m + phi[3, 3] * v_t + gamma[3, 0] * u_m + gamma[3, 1] * u_t,
+            )
     return out_iref, out_ires, out_theta, out_xt, true_xm, true_xt, true_vt
