@@ -9,7 +9,12 @@ __all__ = ["run_accuracy", "run_condition", "ConditionResult", "run_speed", "mac
 
 
 #: Parts of the bench, in the order ``all`` runs them.
-BENCH_KINDS = ("accuracy", "speed", "identify")
+BENCH_KINDS = ("accuracy", "speed", "identify", "learn", "wear", "io")
+
+#: Where each optional part lives: module and function returning a dict to merge into the bench JSON.
+_PARTS = {"learn": ("drivesense.bench.learn", "run_learn_bench"),
+          "wear": ("drivesense.bench.wear", "run_wear_bench"),
+          "io": ("drivesense.bench.io", "run_io_bench")}
 
 
 def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> dict:
@@ -47,6 +52,23 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
         from drivesense.bench.identify import run_frf_bench
 
         out["identify"] = run_frf_bench(progress=progress)
+        try:
+            from drivesense.bench.linear_axis import run_linear_axis_bench
+        except ImportError:  # pragma: no cover - the linear-axis bench is added separately
+            pass
+        else:
+            out.update(run_linear_axis_bench(progress=progress))
+    for part, (module, function) in _PARTS.items():
+        if kind in (part, "all"):
+            import importlib
+
+            try:
+                runner = getattr(importlib.import_module(module), function)
+            except (ImportError, AttributeError):
+                if kind == part:
+                    raise ConfigError(f"bench {part!r} is not available in this installation") from None
+                continue
+            out.update(runner(progress=progress))
     return out
 
 

@@ -1,0 +1,11 @@
+"""``drivesense archive add|search|show|export|rm: the experiment archive``."""
+
+from __future__ import annotations
+
+import typer
+
+__all__ = ["register"]
+
+
+def register(root: typer.Typer) -> None:
+    """Add this module's commands (or command group) to the root application."""
