@@ -1,0 +1,129 @@
+"""Inputs, targets and their scaling for the learned force reconstruction (third paper, Sec. 2.3).
+
+Inputs are the controller's NC data: positions, velocities, accelerations and
+motor currents of X, Y, Z, spindle speed and spindle current.  Each is scaled
+linearly to ``[-1, 1]`` from its training range, or to ``[0, 1]`` when it is
+strictly positive in the training data.  Targets (the reference force) are
+low-passed zero-phase at 120 Hz (Butterworth) and scaled by Eq. 17,
+``F* = F / (2 |F_max|) + 0.5``.  The scalers are plain numbers saved as JSON
+beside the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal as sps
+
+from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.recording import Recording
+
+__all__ = ["INPUT_CHANNELS", "TARGET_CHANNELS", "Scaler", "TargetScaler", "input_matrix", "filtered_target",
+           "resample_to"]
+
+#: NC channels the networks read, in order.
+INPUT_CHANNELS = tuple(f"{ax}_{q}" for q in ("position", "velocity", "acceleration", "current")
+                       for ax in "xyz") + ("spindle_speed", "spindle_current")
+#: Force channels the networks reconstruct (one network each).
+TARGET_CHANNELS = ("force_x", "force_y", "force_z")
+
+
+@dataclass
+class Scaler:
+    """Linear scaling of each input column to ``[-1, 1]`` (or ``[0, 1]`` if strictly positive).
+
+    Attributes
+    ----------
+    low, high : ndarray
+        Training minimum and maximum of each column (SI).
+    positive : ndarray of bool
+        Columns scaled to ``[0, 1]``.
+    """
+
+    low: np.ndarray
+    high: np.ndarray
+    positive: np.ndarray
+
+    @classmethod
+    def fit(cls, matrices) -> "Scaler":
+        """Ranges from a list of ``(n_samples, n_inputs)`` training matrices."""
+        stacked = np.vstack(list(matrices))
+        low, high = stacked.min(axis=0), stacked.max(axis=0)
+        positive = low > 0
+        low = np.where(positive, 0.0, low)
+        span = high - low
+        high = np.where(span > 0, high, low + 1.0)  # constant columns map to the bottom of the range
+        return cls(low, high, positive)
+
+    def transform(self, x: np.ndarray) -> np.ndarray:
+        """Scaled copy of ``x`` (float32)."""
+        u = (np.asarray(x, float) - self.low) / (self.high - self.low)
+        return np.where(self.positive, u, 2.0 * u - 1.0).astype(np.float32)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form."""
+        return {"low": self.low.tolist(), "high": self.high.tolist(), "positive": self.positive.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Scaler":
+        """Inverse of :meth:`to_dict`."""
+        try:
+            return cls(np.asarray(d["low"], float), np.asarray(d["high"], float), np.asarray(d["positive"], bool))
+        except KeyError as exc:
+            raise ConfigError(f"input scaler lacks {exc.args[0]!r}") from None
+
+
+@dataclass
+class TargetScaler:
+    """Eq. 17 for one force component: ``F* = F / (2 |F_max|) + 0.5``.
+
+    Attributes
+    ----------
+    f_max : float
+        Largest absolute (filtered) training force [N].
+    """
+
+    f_max: float
+
+    def transform(self, f: np.ndarray) -> np.ndarray:
+        """Scaled force (float32)."""
+        return (np.asarray(f, float) / (2.0 * self.f_max) + 0.5).astype(np.float32)
+
+    def inverse(self, f_star: np.ndarray) -> np.ndarray:
+        """Force [N] from the scaled value."""
+        return (np.asarray(f_star, float) - 0.5) * 2.0 * self.f_max
+
+
+def input_matrix(recording: Recording) -> np.ndarray:
+    """The ``(n_samples, 14)`` input matrix of a trace, in SI (before scaling)."""
+    recording.require(*INPUT_CHANNELS)
+    return np.column_stack([recording[c] for c in INPUT_CHANNELS])
+
+
+def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 120.0, order: int = 4) -> np.ndarray:
+    """Reference force low-passed zero-phase (Butterworth) at ``cutoff_hz`` [Hz], in N."""
+    recording.require(channel)
+    f = recording[channel]
+    nyq = 0.5 * recording.fs
+    if cutoff_hz >= nyq:
+        raise ConfigError(f"target filter {cutoff_hz} Hz is not below the Nyquist frequency {nyq:g} Hz")
+    sos = sps.butter(order, cutoff_hz, fs=recording.fs, output="sos")
+    if f.size <= 3 * (2 * sos.shape[0] + 1):
+        raise InvalidSignalError(f"trace '{recording.meta.get('name', '')}' is too short for the target filter")
+    return sps.sosfiltfilt(sos, f)
+
+
+def resample_to(recording: Recording, fs: float) -> Recording:
+    """The trace on a uniform grid at ``fs`` [Hz] (polyphase, anti-aliased); provenance says so."""
+    if abs(recording.fs - fs) < 1e-9 * fs:
+        return recording
+    from fractions import Fraction
+
+    ratio = Fraction(fs / recording.fs).limit_denominator(1000)
+    channels = {c: sps.resample_poly(recording[c], ratio.numerator, ratio.denominator) for c in recording.channels}
+    units = {c: recording.units(c) for c in recording.channels}
+    meta = recording.meta
+    meta["provenance"] = list(meta.get("provenance", [])) + [
+        f"resampled {recording.fs:g} Hz -> {fs:g} Hz (polyphase {ratio.numerator}/{ratio.denominator})"]
+    return Recording.from_arrays(channels, fs=fs, t0=recording.t0, units=units, meta=meta)

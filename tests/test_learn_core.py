@@ -1,0 +1,93 @@
+"""Learned reconstruction, core pieces: scaling round trips and the compiled LSTM (= PyTorch, stream = batch)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivesense.learn.features import INPUT_CHANNELS, Scaler, TargetScaler
+from drivesense.learn.kernel import LSTMState, LSTMWeights, _tanh, run_lstm
+
+
+def test_input_scaler_maps_training_range():
+    rng = np.random.default_rng(0)
+    a = np.column_stack([rng.uniform(-3, 5, 500), rng.uniform(2, 9, 500), np.full(500, 4.0)])
+    sc = Scaler.fit([a[:250], a[250:]])
+    u = sc.transform(a)
+    assert u[:, 0].min() == pytest.approx(-1, abs=1e-6) and u[:, 0].max() == pytest.approx(1, abs=1e-6)
+    # strictly positive column: [0, 1] from zero
+    assert sc.positive.tolist() == [False, True, True]
+    assert u[:, 1].max() == pytest.approx(1, abs=1e-6) and u[:, 1].min() > 0
+    assert np.all(np.isfinite(u[:, 2]))  # a constant column does not divide by zero
+    again = Scaler.from_dict(sc.to_dict())
+    np.testing.assert_array_equal(again.transform(a), u)
+
+
+def test_target_scaler_is_eq17_and_inverts():
+    ts = TargetScaler(200.0)
+    f = np.array([-200.0, 0.0, 100.0, 200.0])
+    np.testing.assert_allclose(ts.transform(f), [0.0, 0.5, 0.75, 1.0])
+    np.testing.assert_allclose(ts.inverse(ts.transform(f)), f, atol=1e-4)
+
+
+def test_input_channels_are_the_papers_nc_data():
+    assert len(INPUT_CHANNELS) == 14 and "spindle_current" in INPUT_CHANNELS and "z_acceleration" in INPUT_CHANNELS
+
+
+def test_fast_tanh_accuracy():
+    xs = np.linspace(-12, 12, 48001)
+    assert max(abs(_tanh(v) - math.tanh(v)) for v in xs) < 2e-7
+
+
+def _random_weights(seed=0, layers=3, hidden=20, inputs=14, dropout=0.1):
+    rng = np.random.default_rng(seed)
+    state = {}
+    for k in range(layers):
+        n_in = inputs if k == 0 else hidden
+        state[f"lstm.weight_ih_l{k}"] = rng.normal(0, 0.4, (4 * hidden, n_in))
+        state[f"lstm.weight_hh_l{k}"] = rng.normal(0, 0.4, (4 * hidden, hidden))
+        state[f"lstm.bias_ih_l{k}"] = rng.normal(0, 0.1, 4 * hidden)
+        state[f"lstm.bias_hh_l{k}"] = rng.normal(0, 0.1, 4 * hidden)
+    state["head.weight"] = rng.normal(0, 0.5, (1, hidden))
+    state["head.bias"] = rng.normal(0, 0.1, 1)
+    return state
+
+
+def test_kernel_streaming_equals_batch_and_state_is_constant():
+    w = LSTMWeights.from_state_dict(_random_weights(), 3, 0.1)
+    x = np.random.default_rng(1).uniform(-1, 1, (1000, 14))
+    batch = run_lstm(w, LSTMState(w), x)
+    st = LSTMState(w)
+    sizes = np.random.default_rng(2).integers(0, 40, 200)
+    parts, i = [], 0
+    for s in sizes:
+        parts.append(run_lstm(w, st, x[i:i + s]))
+        i += s
+    parts.append(run_lstm(w, st, x[i:]))
+    assert np.array_equal(np.concatenate(parts), batch)
+    assert st.h.shape == (3, 20) and st.c.shape == (3, 20)
+
+
+def test_mc_dropout_samples_differ_and_evaluation_mode_is_deterministic():
+    w = LSTMWeights.from_state_dict(_random_weights(), 3, 0.2)
+    x = np.random.default_rng(1).uniform(-1, 1, (300, 14))
+    a = run_lstm(w, LSTMState(w), x, seed=1)
+    b = run_lstm(w, LSTMState(w), x, seed=2)
+    assert not np.allclose(a, b)
+    assert np.array_equal(run_lstm(w, LSTMState(w), x), run_lstm(w, LSTMState(w), x))
+
+
+def test_kernel_matches_pytorch():
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)
+    lstm = torch.nn.LSTM(14, 20, 3, batch_first=True, dropout=0.1).double().eval()
+    head = torch.nn.Linear(20, 1).double()
+    x = np.random.default_rng(0).uniform(-2, 2, (800, 14))
+    with torch.no_grad():
+        ref = head(lstm(torch.from_numpy(x)[None])[0])[0, :, 0].numpy()
+    state = {f"lstm.{k}": v for k, v in lstm.state_dict().items()}
+    state.update({f"head.{k}": v for k, v in head.state_dict().items()})
+    out = run_lstm(LSTMWeights.from_state_dict(state, 3), LSTMState(LSTMWeights.from_state_dict(state, 3)), x)
+    np.testing.assert_allclose(out, ref, atol=1e-6)
