@@ -400,9 +400,12 @@ def nc_trace(result: LinearMachineResult, work_force, config: LinearServoConfig)
     for name, arr in zip(("position", "velocity", "acceleration", "current"), src):
         for i, ax in enumerate(AXES):
             sig = arr[i]
-            if taps.size:
-                sig = sps.lfilter(taps, 1.0, sig, zi=sps.lfilter_zi(taps, 1.0) * sig[0])[0]
-            out[f"{ax}_{name}"] = np.ascontiguousarray(sig[index])
+            if taps.size:   # causal FIR from rest at the first value, evaluated at the kept samples only
+                padded = np.concatenate((np.full(taps.size - 1, sig[0]), sig))
+                win = np.lib.stride_tricks.sliding_window_view(padded, taps.size)
+                out[f"{ax}_{name}"] = win[index] @ taps[::-1]
+            else:
+                out[f"{ax}_{name}"] = np.ascontiguousarray(sig[index])
     fw = np.asarray(work_force, dtype=np.float64)
     ref_sos = sps.butter(config.reference_order, config.reference_cutoff_hz, fs=config.fs, output="sos") \
         if config.reference_order > 0 else None
