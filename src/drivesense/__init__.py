@@ -17,6 +17,11 @@ from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.presets import table1_axis, table1_stage
 from drivesense.recording import Recording
 from drivesense.score import Score, score_estimate
+from drivesense.estimate.model_based import ModelBased
+from drivesense.identify.linear_axis import IdentificationReport, identify_axes, run_identification
+from drivesense.io.axes_file import read_axes_file, write_axes_file
+from drivesense.machine.linear_motor import LinearMotorAxis, ThreeAxisModel, linear_machine_model
+from drivesense.sim.machining import process_names, simulate_air_moves, simulate_process
 
 __version__ = "0.1.0"
 
@@ -27,3 +32,6 @@ __all__ = [
     "CurrentOnly", "RigidBody", "MEDOB", "VibrationMode", "SignalParams",
     "FrictionMap", "build_friction_map", "Score", "score_estimate", "__version__",
 ]
+__all__ += ["ModelBased", "LinearMotorAxis", "ThreeAxisModel", "linear_machine_model", "identify_axes",
+            "run_identification", "IdentificationReport", "read_axes_file", "write_axes_file",
+            "simulate_process", "simulate_air_moves", "process_names"]

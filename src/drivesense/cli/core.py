@@ -125,14 +125,15 @@ def _parse_window(text: str) -> tuple[float, float]:
 @friendly
 def estimate(
     trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
-    axis_file: Annotated[Path, typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")],
-    out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N].")],
-    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration")] = "vibration",
+    out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N] (model: force_x/y/z).")],
+    axis_file: Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")] = None,
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration | model")] = "vibration",
     idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
     tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the estimate (and reference, if any).")] = None,
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
+    axes_file: Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")] = None,
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
@@ -140,6 +141,17 @@ def estimate(
     from drivesense.io import write_csv
     from drivesense.io.axis_file import read_axis_file
 
+    if method == "model":
+        from drivesense.cli.identify_linear import estimate_model
+
+        if idle or tare or axis_file:
+            raise ConfigError("--method model takes --axes AXES.toml, not --axis/--idle/--tare "
+                              "(identify the axes with 'drivesense identify linear')")
+        if axes_file is None:
+            raise ConfigError("--method model needs --axes AXES.toml (write one with 'drivesense identify linear')")
+        return estimate_model(trace, axes_file, out, json_path, plot)
+    if axis_file is None:
+        raise ConfigError(f"--method {method} needs --axis AXIS.toml (ball-screw axis file)")
     axis, signal = read_axis_file(axis_file)
     est = make_estimator(method, axis, signal, axis_name=axis_name)
     rec = read_trace(trace, axis_name)

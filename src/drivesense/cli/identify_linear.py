@@ -1,11 +1,126 @@
-"""``drivesense identify linear``: linear-motor axes by the four-step method."""
+"""``drivesense identify linear``: linear-motor axes by the four-step method; ``estimate --method model``."""
 
 from __future__ import annotations
 
-import typer
+from pathlib import Path
+from typing import Annotated, Optional
 
-__all__ = ["register"]
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from drivesense.cli.common import console, friendly, read_trace, write_json
+
+__all__ = ["register", "parse_motor_constants", "estimate_model"]
+
+
+def parse_motor_constants(text: str) -> dict[str, float]:
+    """Parse ``x=180,y=260,z=140`` (N/A) into a dict; ConfigError naming the bad item."""
+    from drivesense.errors import ConfigError
+
+    out: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in ("x", "y", "z"):
+            raise ConfigError(f"--km item {item!r}: expected AXIS=VALUE with AXIS x, y or z (N/A), e.g. x=180")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise ConfigError(f"--km item {item!r}: {value!r} is not a number") from None
+        if not out[name] > 0:
+            raise ConfigError(f"--km item {item!r}: the motor constant must be > 0 N/A")
+    missing = [a for a in ("x", "y", "z") if a not in out]
+    if missing:
+        raise ConfigError(f"--km lacks axis/axes {', '.join(missing)} (give x=...,y=...,z=... in N/A)")
+    return out
+
+
+def identify_linear(
+    air_moves: Annotated[list[Path], typer.Argument(help="NC traces (.nc or .csv) of air moves of x, y and z.")],
+    out: Annotated[Path, typer.Option("--out", help="AXES.toml to write.")],
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the identification report as JSON here.")] = None,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the cogging tables and Stribeck curves.")] = None,
+    km: Annotated[Optional[str], typer.Option("--km", help="Motor constants x=..,y=..,z=.. [N/A] (default: the traces' metadata).")] = None,
+    pole_pitch: Annotated[float, typer.Option(help="Pole pitch of the motors [m].")] = 0.023,
+    table_size: Annotated[int, typer.Option(help="Points of the cogging table over one pole pitch.")] = 64,
+) -> None:
+    """Identify restoring force, cogging, Stribeck friction and masses of X/Y/Z and write AXES.toml."""
+    from drivesense.identify.linear_axis import run_identification
+    from drivesense.io.axes_file import write_axes_file
+
+    recs = [read_trace(p) for p in air_moves]
+    report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,
+                                pole_pitch=pole_pitch, table_size=table_size)
+    model = report.model
+    write_axes_file(out, model, header=f"identified by the four-step method from {len(recs)} air move(s)")
+    stacked = model.stacked_masses()
+    table = Table(title=f"Linear axes identified from {len(recs)} air move(s)")
+    table.add_column("parameter")
+    for a in ("x", "y", "z"):
+        table.add_column(a, justify="right")
+    rows = [("K_m [N/A] (given)", lambda ax, st, a: f"{ax.K_m:.4g}"),
+            ("k [N/m]", lambda ax, st, a: f"{ax.k:.4g}"),
+            ("s_r [mm]", lambda ax, st, a: f"{ax.s_r * 1e3:.2f}"),
+            ("own mass m [kg]", lambda ax, st, a: f"{ax.m:.1f}"),
+            ("moved mass (Eq. 2) [kg]", lambda ax, st, a: f"{stacked[a]:.1f}"),
+            ("F_C [N]", lambda ax, st, a: f"{ax.F_C:.2f}"),
+            ("F_br [N]", lambda ax, st, a: f"{ax.F_br:.2f}"),
+            ("v_s [mm/s]", lambda ax, st, a: f"{ax.v_s * 1e3:.3g}"),
+            ("sigma [N s/m]", lambda ax, st, a: f"{ax.sigma:.4g}"),
+            ("cogging 1st harmonic [N]", lambda ax, st, a: f"{st['cogging']['amplitudes_n'][0]:.2f}"),
+            ("rms step 1 / 3 / 4 [N]", lambda ax, st, a: f"{st['restoring']['rms_n']:.2f} / "
+                                                         f"{st['friction']['rms_n']:.2f} / {st['mass']['rms_n']:.2f}")]
+    for label, fmt in rows:
+        table.add_row(escape(label), *(fmt(model.axis(a), report.steps[a], a) for a in ("x", "y", "z")))
+    console.print(table)
+    console.print("seconds per axis: " + ", ".join(f"{k} {v:.3f}" for k, v in report.seconds.items()))
+    console.print(f"wrote {out}")
+    if plot:
+        from drivesense.identify.linear_axis import plot_identification
+
+        plot_identification(report, plot)
+        console.print(f"wrote {plot}")
+    write_json(json_path, {"air_moves": [str(p) for p in air_moves], "axes_file": str(out), **report.to_dict()})
+
+
+def estimate_model(trace: Path, axes_file: Path, out: Path, json_path: Optional[Path] = None,
+                   plot: Optional[Path] = None) -> None:
+    """``drivesense estimate TRACE --method model --axes AXES.toml``: Eq. 2 on a 3-axis NC trace."""
+    from drivesense.bench.linear_axis import plot_force_estimate
+    from drivesense.estimate.model_based import ModelBased
+    from drivesense.io import write_csv
+    from drivesense.io.axes_file import read_axes_file
+    from drivesense.score import score_estimate
+
+    est = ModelBased(read_axes_file(axes_file))
+    rec = read_trace(trace)
+    force = est.estimate(rec)
+    write_csv(force, out)
+    info: dict = {"method": "model", "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
+                  "latency_s": force.meta["latency_s"], "output": str(out), "force_n": {}, "score_vs_reference": {}}
+    table = Table(title=f"model-based estimate of {trace.name}", show_header=False)
+    table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
+    table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the trace's declared delay)")
+    window = tuple(rec.meta.get("score_window", (rec.t0, rec.t0 + rec.duration)))
+    for ch in est.output_channels:
+        f = force[ch]
+        info["force_n"][ch] = {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
+                               "std": float(f.std())}
+        row = f"{f.mean():.2f} / {f.min():.2f} / {f.max():.2f} N"
+        if ch in rec.channels:
+            s = score_estimate(force, rec, channel=ch, window=window)
+            info["score_vs_reference"][ch] = s.to_dict()
+            row += f"   vs reference: RMSE {s.rmse_n:.2f} N, NRMSE {s.nrmse * 100:.2f} %"
+        table.add_row(f"{ch} mean / min / max", row)
+    console.print(table)
+    console.print(f"wrote {out}")
+    if plot:
+        plot_force_estimate(rec, force, plot, title=f"model-based estimate: {trace.name}")
+        info["plot"] = str(plot)
+    write_json(json_path, info)
 
 
 def register(identify_app: typer.Typer) -> None:
-    """Add this module's command to the ``identify`` group."""
+    """Add ``linear`` to the ``identify`` group."""
+    identify_app.command("linear")(friendly(identify_linear))
