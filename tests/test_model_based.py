@@ -111,3 +111,23 @@ def test_cli_estimate_method_model(groove, tmp_path):
                               "--out", str(tmp_path / "bad.csv")])
     assert res.exit_code == 2 and "x_velocity" in res.output
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_bench_in_the_shape_of_table_2(tmp_path):
+    from drivesense.bench.linear_axis import run_linear_axis_bench
+
+    labels = []
+    res = run_linear_axis_bench(labels.append, cases=(("groove_+x", 10, 2, 800, 5400), ("pocket_ccw", 2, 2, 600, 4500)),
+                                figure=tmp_path / "pocket.png")
+    json.dumps(res)
+    assert labels == ["identify", "groove_+x", "pocket_ccw"]
+    rows = {(r["process"], r["axis"]): r for r in res["linear_axis"]}
+    assert set(rows) == {("groove_+x", "x"), ("groove_+x", "y"), ("pocket_ccw", "x"), ("pocket_ccw", "y"),
+                         ("pocket_ccw", "z")}
+    assert rows[("groove_+x", "x")]["moving"] and not rows[("groove_+x", "y")]["moving"]
+    assert {"rmse_n", "nrmse", "max_abs_force_n"} <= set(rows[("pocket_ccw", "x")])
+    pocket_y = rows[("pocket_ccw", "y")]
+    assert pocket_y["reversals"] == 2 and pocket_y["rmse_reversal_n"] > pocket_y["rmse_elsewhere_n"]
+    assert res["linear_summary"]["constant_feed_within_target"] and res["linear_identify"]["all_within_targets"]
+    assert res["linear_identify_seconds"]["x"] < 10.0
+    assert (tmp_path / "pocket.png").stat().st_size > 10_000

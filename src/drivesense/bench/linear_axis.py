@@ -28,7 +28,8 @@ from drivesense.recording import Recording
 from drivesense.score import score_estimate
 from drivesense.sim.machining import ProcessSettings, simulate_air_moves, simulate_process
 
-__all__ = ["LINEAR_CASES", "run_linear_axis_bench", "identification_table", "score_process",
+__all__ = ["LINEAR_CASES", "run_linear_axis_bench", "identification_table", "score_process", "session_truth",
+           "reversal_scores",
            "plot_pocket_estimate", "plot_force_estimate"]
 
 #: Processes of the benchmark: (process, a_e [mm], a_p [mm], v_f [mm/min], n [1/min]), after Table 2.
@@ -78,6 +79,26 @@ def identification_table(identified: ThreeAxisModel, true: ThreeAxisModel) -> di
     return out
 
 
+def session_truth(air_moves, nominal: ThreeAxisModel) -> ThreeAxisModel:
+    """The true model of a simulated identification session: ``nominal`` with the session's varied values.
+
+    Parameters
+    ----------
+    air_moves : sequence of Recording
+        Simulated air moves (``meta["true_model"]``).
+    nominal : ThreeAxisModel
+        The preset's nominal model (cogging table, masses).
+
+    Returns
+    -------
+    ThreeAxisModel
+    """
+    truth = air_moves[0].meta.get("true_model") if air_moves else None
+    if not truth:
+        return nominal
+    return ThreeAxisModel(**{a: nominal.axis(a).with_values(**truth[a]) for a in AXES})
+
+
 def score_process(estimate: Recording, trace: Recording, axis: str) -> dict:
     """RMSE, NRMSE and max |F| of one axis of a ModelBased estimate over the trace's scoring window.
 
@@ -104,6 +125,49 @@ def score_process(estimate: Recording, trace: Recording, axis: str) -> dict:
             "peak_to_peak_n": s.peak_to_peak_n}
 
 
+def reversal_scores(estimate: Recording, trace: Recording, axis: str, *, half_width: float = 0.25,
+                    min_speed: float = 5e-4) -> dict:
+    """RMSE near the axis's velocity reversals inside the scoring window, and elsewhere in it.
+
+    Parameters
+    ----------
+    estimate : Recording
+        Output of :meth:`ModelBased.estimate`.
+    trace : Recording
+        The simulated trace (``{axis}_velocity``, ``force_{axis}``, ``score_window``).
+    axis : str
+        Axis letter.
+    half_width : float
+        Time around each reversal counted as "near" [s].
+    min_speed : float
+        The velocity must exceed this on both sides of a reversal, less than
+        ``half_width`` apart [m/s].
+
+    Returns
+    -------
+    dict
+        ``reversals`` (count), ``rmse_reversal_n`` and ``rmse_elsewhere_n`` [N]
+        (None where there is nothing to score).
+    """
+    from drivesense.score import aligned_reference
+
+    t = trace.time
+    start, end = trace.meta["score_window"]
+    v = trace[f"{axis}_velocity"]
+    sign = np.where(v > min_speed, 1, np.where(v < -min_speed, -1, 0))
+    idx = np.flatnonzero(sign)
+    flips = [int(b) for a, b in zip(idx[:-1], idx[1:])          # through zero, not stop-dwell-go
+             if sign[a] != sign[b] and (b - a) / trace.fs <= half_width and start <= t[b] < end]
+    err = estimate[f"force_{axis}"] - aligned_reference(trace[f"force_{axis}"], trace.fs, None,
+                                                         float(estimate.meta.get("latency_s", 0.0)))
+    inside = (t >= start) & (t < end)
+    near = np.zeros(t.size, dtype=bool)
+    for i in flips:
+        near |= np.abs(t - t[i]) <= half_width
+    rms = lambda sel: float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else None
+    return {"reversals": len(flips), "rmse_reversal_n": rms(inside & near), "rmse_elsewhere_n": rms(inside & ~near)}
+
+
 def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed: int = 1,
                           settings: ProcessSettings | None = None, cases=LINEAR_CASES,
                           figure: str | Path | None = None) -> dict:
@@ -126,9 +190,11 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
     -------
     dict
         ``linear_axis``: rows ``{process, axis, moving, rmse_n, nrmse,
-        max_abs_force_n, peak_to_peak_n, a_e_mm, a_p_mm, v_f_mm_min, n_rpm}``;
-        ``linear_identify``: :func:`identification_table` plus the per-step
-        report; ``linear_identify_seconds``: wall time per axis;
+        max_abs_force_n, peak_to_peak_n, reversals, rmse_reversal_n,
+        rmse_elsewhere_n, a_e_mm, a_p_mm, v_f_mm_min, n_rpm}``;
+        ``linear_identify``: :func:`identification_table` against the
+        session's true values (:func:`session_truth`) and against the preset's
+        nominal ones, plus the per-step report; ``linear_identify_seconds``: wall time per axis;
         ``linear_summary``: the targets.
     """
     settings = settings or ProcessSettings()
@@ -138,7 +204,7 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
     t_ident = time.perf_counter() - t0
     if progress:
         progress("identify")
-    table = identification_table(report.model, settings.physics.model())
+    table = identification_table(report.model, session_truth(air, settings.physics.model()))
     est = ModelBased(report.model)
     rows, pocket = [], None
     for k, (proc, ae, ap, vf, n) in enumerate(cases):
@@ -148,6 +214,7 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
         moving = trace.meta["moving_axes"]
         for ax in ("x", "y") + (("z",) if "z" in moving else ()):
             rows.append({"process": proc, "axis": ax, "moving": ax in moving, **score_process(forces, trace, ax),
+                         **reversal_scores(forces, trace, ax),
                          "a_e_mm": ae, "a_p_mm": ap, "v_f_mm_min": vf, "n_rpm": n})
         if proc == "pocket_ccw":
             pocket = (trace, forces)
@@ -160,14 +227,19 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
     ident_ok = all(v["ok"] for ax in table.values() for v in ax.values())
     return {
         "linear_axis": rows,
-        "linear_identify": {"table": table, "report": report.steps, "all_within_targets": ident_ok,
-                            "physics": "full simulator physics, air moves of one session"},
+        "linear_identify": {"table": table, "all_within_targets": ident_ok,
+                            "table_vs_nominal": identification_table(report.model, settings.physics.model()),
+                            "report": report.steps,
+                            "physics": "full simulator physics, air moves of one session; 'table' compares with "
+                                       "the session's true values (nominal with its run-to-run variation)"},
         "linear_identify_seconds": {"total": t_ident, **report.seconds},
         "linear_summary": {
             "constant_feed_moving_axis_worst_nrmse": max(r["nrmse"] for r in const) if const else None,
             "constant_feed_target_nrmse": 0.10,
             "constant_feed_within_target": bool(const) and all(r["nrmse"] <= 0.10 for r in const),
             "median_rmse_n": float(np.median([r["rmse_n"] for r in rows])),
+            "reversal_rmse_n": {f"{r['process']}/{r['axis']}": [r["rmse_reversal_n"], r["rmse_elsewhere_n"]]
+                                for r in rows if r["reversals"]},
             "standing_axis_median_nrmse": float(np.median([r["nrmse"] for r in rows if not r["moving"]]))
             if any(not r["moving"] for r in rows) else None,
             "figures": figures,

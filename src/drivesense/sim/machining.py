@@ -411,8 +411,8 @@ def _ideal_settings(settings: ProcessSettings, physics: LinearMachinePhysics) ->
 
 
 def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, settings: ProcessSettings | None = None,
-                       travel_speeds=(0.02, 0.05), speeds=(0.5e-3, 1e-3, 2e-3, 3e-3, 5e-3, 8e-3, 0.012, 0.03, 0.08, 0.15),
-                       segment_time: float = 2.0, accel_speed: float = 0.25, accel_ramps=(0.08, 0.12, 0.16)
+                       travel_speeds=(0.03, 0.06), speeds=(0.5e-3, 1e-3, 2e-3, 3e-3, 5e-3, 8e-3, 0.012, 0.03, 0.08, 0.15),
+                       segment_time: float = 1.5, accel_speed: float = 0.25, accel_ramps=(0.08, 0.12, 0.16)
                        ) -> list[Recording]:
     """Identification moves without cutting (Sec. 2.2), per axis; the other axes stand at their centre.
 
@@ -448,7 +448,9 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
     -------
     list of Recording
         Three NC traces per axis (``air_{ax}_travel``, ``air_{ax}_speeds``,
-        ``air_{ax}_accel``), channels as :func:`simulate_process` without the spindle.
+        ``air_{ax}_accel``), channels as :func:`simulate_process` without the
+        spindle; ``meta["true_model"]`` holds the session's true model
+        parameters (nominal values with this session's variation; SI).
     """
     settings = settings or ProcessSettings()
     out = []
@@ -499,7 +501,9 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
             physics = session
             use = _ideal_settings(settings, physics) if ideal else settings
             zeros = np.zeros((3, t.size))
+            truth = {a: {k: v for k, v in physics.model().axis(a).to_dict().items() if k != "cogging"} for a in AXES}
             meta = {"name": f"air_{ax}_{label}", "kind": "air_move", "moving_axes": [ax], "program": label,
+                    "true_model": truth,
                     "seed": int(rseed), "provenance": [f"drivesense.sim.machining air moves {ax}/{label}, seed {rseed}"]}
             out.append(_record(use, physics, t, pos, vel, acc, zeros, zeros, int(rng.integers(2 ** 31)), meta))
     return out
