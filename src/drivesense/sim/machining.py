@@ -396,6 +396,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     load = np.vstack([np.abs(force[1]) + np.abs(force[2]), np.abs(force[0]) + np.abs(force[2]),
                       np.abs(force[0]) + np.abs(force[1])])
     moving = [a for i, a in enumerate(AXES) if np.ptp(pos[i]) > 1e-4]
+    if process.startswith("groove_"):
+        a_e = settings.tool.diameter          # a slot: full immersion whatever a_e was given
     meta = {"name": f"{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}", "process": process,
             "kind": "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f, "n_rpm": n, "seed": int(seed),
             "moving_axes": moving, "score_window": [float(window[0]), float(window[1])],
