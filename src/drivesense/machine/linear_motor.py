@@ -444,7 +444,9 @@ def linear_machine_physics(pole_pitch: float = 0.023, table_size: int = 64) -> L
     the travel), 1 % extra friction per newton of normal load, 5 % cogging
     amplitude change along the travel, 4 % motor-constant droop at rated
     current, a 600 Hz current loop with a 20 000 rad/s extra pole, 1 % yaw
-    coupling of X's inertial force into Y and 2 % run-to-run variation.  The Z
+    coupling of X's inertial force into Y, a Y-guide load that grows by twice
+    the X+Z weight per metre of X away from its centre, and 2 % run-to-run
+    variation.  The Z
     axis's weight is assumed fully counterbalanced.
 
     Parameters
