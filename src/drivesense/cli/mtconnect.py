@@ -1,11 +1,89 @@
-"""``drivesense mtconnect probe|import: MTConnect ingest``."""
+"""``drivesense mtconnect probe|import``: MTConnect ingest."""
 
 from __future__ import annotations
 
-import typer
+from pathlib import Path
+from typing import Annotated, Optional
 
-__all__ = ["register"]
+import typer
+from rich.table import Table
+
+from drivesense.cli.common import console, friendly, write_json
+
+__all__ = ["register", "mtconnect_app"]
+
+mtconnect_app = typer.Typer(no_args_is_help=True,
+                            help="MTConnect: list an agent's data items, import Streams documents, SHDR logs or "
+                                 "a live agent into a recording.")
+
+
+def _is_url(text: str) -> bool:
+    return text.startswith(("http://", "https://"))
+
+
+@mtconnect_app.command("probe")
+@friendly
+def probe(
+    source: Annotated[str, typer.Argument(help="Devices document (.xml) or agent URL (http://host:5000).")],
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the data items as JSON here.")] = None,
+    timeout: Annotated[float, typer.Option(help="HTTP timeout [s].")] = 10.0,
+) -> None:
+    """List the data items and the drivesense channel each maps to."""
+    from drivesense.io.mtconnect import parse_devices
+    from drivesense.io.mtconnect_client import MTConnectClient
+
+    model = MTConnectClient(source, timeout=timeout).probe() if _is_url(source) else parse_devices(Path(source))
+    rows = []
+    for item in model.items:
+        scale = item.scale()
+        rows.append({"id": item.id, "name": item.name, "component": f"{item.component} {item.component_name}".strip(),
+                     "category": item.category, "type": item.type, "sub_type": item.sub_type,
+                     "units": item.units, "channel": item.channel if item.category == "SAMPLE" else "",
+                     "si_unit": scale[1] if scale and item.category == "SAMPLE" else ""})
+    for dev in model.devices:
+        console.print(f"device {dev['name']} ({dev['uuid']}) {dev['manufacturer']} {dev['model']}".rstrip(),
+                      markup=False, highlight=False)
+    table = Table(title=f"{len(rows)} data item(s)")
+    for col in ("id", "component", "category", "type", "sub_type", "units", "channel", "si_unit"):
+        table.add_column(col)
+    for r in rows:
+        table.add_row(*(r[c] for c in ("id", "component", "category", "type", "sub_type", "units", "channel",
+                                       "si_unit")))
+    console.print(table)
+    write_json(json_path, {"devices": model.devices, "data_items": rows})
+
+
+@mtconnect_app.command("import")
+@friendly
+def import_(
+    source: Annotated[str, typer.Argument(help="Streams document (.xml), SHDR log, or agent URL.")],
+    out: Annotated[Path, typer.Option("--out", help="Output recording: .nc (lossless) or .csv.")],
+    devices: Annotated[Optional[Path], typer.Option(help="Devices document (/probe) for channel names and units.")]
+    = None,
+    fs: Annotated[Optional[float], typer.Option(help="Output rate [Hz] (default: the densest reporting rate).")]
+    = None,
+    method: Annotated[str, typer.Option(help="Resampling: linear or hold (zero-order hold).")] = "linear",
+    count: Annotated[int, typer.Option(help="URL: observations per /sample request.")] = 1000,
+    max_requests: Annotated[int, typer.Option(help="URL: most requests.")] = 100,
+    timeout: Annotated[float, typer.Option(help="URL: HTTP timeout [s].")] = 10.0,
+) -> None:
+    """Resample MTConnect observations explicitly onto a uniform grid and save a recording."""
+    from drivesense.cli.core import _save_recording
+    from drivesense.io.mtconnect import parse_devices
+    from drivesense.io.mtconnect_client import MTConnectClient
+    from drivesense.io.mtconnect_resample import read_mtconnect
+
+    model = parse_devices(devices) if devices is not None else None
+    if _is_url(source):
+        rec = MTConnectClient(source, timeout=timeout).collect(count=count, max_requests=max_requests, fs=fs,
+                                                               method=method, devices=model)
+    else:
+        rec = read_mtconnect(Path(source), model, fs=fs, method=method)
+    _save_recording(rec, out)
+    console.print(f"wrote {out}: {rec!r}", markup=False, highlight=False)
+    console.print(rec.meta["provenance"][-1], markup=False, highlight=False)
 
 
 def register(root: typer.Typer) -> None:
-    """Add this module's commands (or command group) to the root application."""
+    """Add the ``mtconnect`` command group to the root application."""
+    root.add_typer(mtconnect_app, name="mtconnect")
