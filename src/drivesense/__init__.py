@@ -35,3 +35,15 @@ __all__ = [
 __all__ += ["ModelBased", "LinearMotorAxis", "ThreeAxisModel", "linear_machine_model", "identify_axes",
             "run_identification", "IdentificationReport", "read_axes_file", "write_axes_file",
             "simulate_process", "simulate_air_moves", "process_names"]
+
+# experiment data: the XML format, the archive, MTConnect ingest
+from drivesense import archive  # noqa: E402
+from drivesense.archive import open_archive  # noqa: E402
+from drivesense.io.mtconnect import parse_devices, parse_shdr, parse_streams  # noqa: E402
+from drivesense.io.mtconnect_client import MTConnectClient  # noqa: E402
+from drivesense.io.mtconnect_resample import read_mtconnect  # noqa: E402
+from drivesense.io.xml_format import (Experiment, read_experiment, read_xml, transform_xml,  # noqa: E402
+                                      validate_xml, write_xml)
+
+__all__ += ["archive", "open_archive", "Experiment", "write_xml", "read_xml", "read_experiment", "validate_xml",
+            "transform_xml", "parse_devices", "parse_streams", "parse_shdr", "read_mtconnect", "MTConnectClient"]

@@ -195,7 +195,7 @@ class SQLArchive:
             params.append(normalise_time(until, end=True))
         for which, ranges in (("start", start), ("end", end)):
             for key, low, high in check_ranges(ranges, which):
-                sub = "EXISTS (SELECT 1 FROM states s WHERE s.exp = e.pk AND s.which = ? AND s.key = ?"
+                sub = "e.pk IN (SELECT s.exp FROM states s WHERE s.which = ? AND s.key = ?"  # uncorrelated
                 params += [which, key]
                 for op, bound in ((">=", low), ("<=", high)):
                     if bound is not None:
