@@ -141,7 +141,8 @@ def check_prolog(head: bytes, where: str = "document") -> None:
                                      f"({text[pos:pos + 20]!r}); not an XML document")
 
 
-def describe_syntax_error(exc: Exception, where: str, total_lines: int | None = None) -> str:
+def describe_syntax_error(exc: Exception, where: str, total_lines: int | None = None,
+                          log: Any = None) -> str:
     """One-line message for an lxml syntax error: document, line, column, reason.
 
     Parameters
@@ -153,6 +154,8 @@ def describe_syntax_error(exc: Exception, where: str, total_lines: int | None = 
     total_lines : int, optional
         Lines in the document; an error on the last line is flagged as a
         probable truncation.
+    log : lxml error log, optional
+        The parser's own log (iterparse reports its first error there).
 
     Returns
     -------
@@ -161,7 +164,7 @@ def describe_syntax_error(exc: Exception, where: str, total_lines: int | None = 
     msg = getattr(exc, "msg", None) or str(exc)
     line = getattr(exc, "lineno", None) or 0
     col = exc.position[1] if getattr(exc, "position", None) else 0
-    log = [e for e in getattr(exc, "error_log", []) if e.level_name in ("FATAL", "ERROR")]
+    log = [e for e in (log if log is not None else []) if e.level_name in ("FATAL", "ERROR")]
     if log and (not line or msg == "no element found"):  # iterparse hides the real error in its log
         msg, line, col = log[0].message, log[0].line, log[0].column
     msg = re.sub(r"\s*\((<string>|[^()]*), line \d+\)\s*$", "", msg).strip()
@@ -246,7 +249,7 @@ def safe_iterparse(source: str | Path | IO[bytes], *, where: str,
             yield event, elem
     except etree.XMLSyntaxError as exc:
         lines = _count_lines(source) if isinstance(source, str) else None
-        raise InvalidSignalError(describe_syntax_error(exc, where, lines)) from None
+        raise InvalidSignalError(describe_syntax_error(exc, where, lines, it.error_log)) from None
 
 
 def _check_depth(root: Any, limits: XMLLimits, where: str) -> None:
