@@ -1,0 +1,8 @@
+"""Monitoring: tool wear from cutting coefficients, runout from once-per-revolution vibration."""
+
+from drivesense.monitor.runout import RunoutEstimate, estimate_runout
+from drivesense.monitor.wear import (WearReport, WearState, WearTracker, WearTrackerSettings, percent_power_increase,
+                                     plot_wear_track, track_wear)
+
+__all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "track_wear", "percent_power_increase",
+           "plot_wear_track", "RunoutEstimate", "estimate_runout"]
