@@ -1,11 +1,113 @@
-"""``drivesense feedpower fit|predict: feed-drive power to average x-force``."""
+"""``drivesense feedpower fit|predict``: feed-drive power to average x-force."""
 
 from __future__ import annotations
 
-import typer
+from pathlib import Path
+from typing import Annotated, Optional
 
-__all__ = ["register"]
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from drivesense.cli.common import console, friendly, write_json
+
+__all__ = ["register", "feedpower_app"]
+
+feedpower_app = typer.Typer(no_args_is_help=True,
+                            help="Average x-force from the feed-drive motor's power (the paper's Sec. 6).")
+
+_CUTS_HELP = ("CSV, one cut per row: slide_speed [mm/min] (in/min accepted), total_power [W] and tare_power [W] "
+              "(hp accepted; or cutting_power), force_x [N] (lbf accepted) for fitting, optional slide_position.")
+_IN_MIN = 0.0254 / 60
+
+
+@feedpower_app.command("fit")
+@friendly
+def fit(
+    cuts: Annotated[Path, typer.Argument(help=escape(_CUTS_HELP))],
+    model_path: Annotated[Path, typer.Option("--model", help="Where to write the model (JSON).")],
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write fit and cross-validation here.")] = None,
+    plot: Annotated[Optional[Path], typer.Option(help="Write force vs cutting power per speed (Fig. 14).")] = None,
+) -> None:
+    """Calibrate efficiency versus slide speed from cuts with a reference force; write MODEL.json."""
+    from drivesense.identify.feed_power import cross_validate, fit_feed_power, per_speed_fits, plot_feed_power, \
+        read_feed_cuts
+
+    data = read_feed_cuts(cuts)
+    model = fit_feed_power(data)
+    model.save(model_path)
+    cv = cross_validate(data)
+    table = Table(title=f"Feed-drive power to x-force: {len(data)} cuts of {cuts.name}")
+    for col in ("slide speed", "cuts", "slope [N/W]", "intercept [N]", "R²", "eta(v)"):
+        table.add_column(escape(col), justify="right")
+    for s in per_speed_fits(data):
+        table.add_row(f"{s.speed * 6e4:.0f} mm/min ({s.speed / _IN_MIN:.0f} in/min)", str(s.cuts), f"{s.slope:.4g}",
+                      f"{s.intercept:.3g}", f"{s.r2:.4f}", f"{model.efficiency(s.speed):.4g}")
+    console.print(table)
+    console.print(f"model: F_x = ({model.a0:.4g} {model.a1:+.4g} s/m * v) (P_total - P_tare) / v {model.f0:+.3g} N, "
+                  f"rms error {model.rms_error:.2f} N; valid for {model.speed_range[0] * 6e4:.4g}-"
+                  f"{model.speed_range[1] * 6e4:.4g} mm/min", highlight=False)
+    loso = ", ".join(f"{x['speed_m_s'] * 6e4:.0f} mm/min {100 * x['mean_error']:.1f} %" for x in cv["loso"])
+    console.print(f"cross-validation: leave-one-cut-out mean error {100 * cv['loco_mean_error']:.1f} %"
+                  + (f"; leave-one-speed-out {loso}" if loso else ""), highlight=False)
+    console.print(f"wrote {model_path}")
+    info = {"cuts": str(cuts), "model": model.to_dict(), "per_speed": [s.__dict__ for s in per_speed_fits(data)],
+            "cross_validation": cv, "model_file": str(model_path)}
+    if plot:
+        plot_feed_power(data, model, plot, title=f"Feed-drive power to x-force: {cuts.name}")
+        info["plot"] = str(plot)
+        console.print(f"wrote {plot}")
+    write_json(json_path, info)
+
+
+@feedpower_app.command("predict")
+@friendly
+def predict(
+    cuts: Annotated[Path, typer.Argument(help=escape(_CUTS_HELP))],
+    model_path: Annotated[Path, typer.Option("--model", help="MODEL.json from 'feedpower fit'.")],
+    out: Annotated[Path, typer.Option("--out", help="Prediction CSV to write.")],
+    force_unit: Annotated[str, typer.Option(help="Unit of the force columns written: N, kN or lbf.")] = "N",
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
+) -> None:
+    """Predict the average x-force of each cut; refuses slide speeds outside the calibrated range."""
+    import numpy as np
+
+    from drivesense import units
+    from drivesense.identify.feed_power import FeedPowerModel, read_feed_cuts
+    from drivesense.io import atomic_output
+
+    units.unit_info(force_unit, quantity=units.FORCE, name="--force-unit")
+    model = FeedPowerModel.load(model_path)
+    data = read_feed_cuts(cuts)
+    force = model.predict(data)
+    f_out = units.from_si(force, force_unit)
+    head = ["cut", "slide_speed [mm/min]", "cutting_power [W]", f"force_x_predicted [{force_unit}]"]
+    tare = None
+    if data.cutting_power is None and data.tare_power is None:
+        tare = np.interp(data.slide_speed, model.tare_speeds, model.tare_powers)
+    cols = [list(data.labels), data.slide_speed * 6e4, data.power(tare), f_out]
+    info = {"cuts": str(cuts), "model": str(model_path), "output": str(out), "predicted_n": force.tolist()}
+    if data.force_x is not None:
+        head += [f"force_x_measured [{force_unit}]", "error [%]"]
+        err = 100 * (force / data.force_x - 1)
+        cols += [units.from_si(data.force_x, force_unit), err]
+        info["mean_abs_error"] = float(np.mean(np.abs(err)) / 100)
+    lines = [",".join(head)] + [",".join(str(c[i]) if k == 0 else f"{c[i]:.6g}" for k, c in enumerate(cols))
+                                for i in range(len(data))]
+    with atomic_output(out) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    table = Table(title=f"Predicted average x-force ({model_path.name})")
+    for h in head:
+        table.add_column(escape(h), justify="right")
+    for i in range(len(data)):
+        table.add_row(*[str(c[i]) if k == 0 else f"{c[i]:.4g}" for k, c in enumerate(cols)])
+    console.print(table)
+    if "mean_abs_error" in info:
+        console.print(f"mean |error| against the measured force: {100 * info['mean_abs_error']:.1f} %")
+    console.print(f"wrote {out}")
+    write_json(json_path, info)
 
 
 def register(root: typer.Typer) -> None:
-    """Add this module's commands (or command group) to the root application."""
+    """Add the ``feedpower`` command group to the root application."""
+    root.add_typer(feedpower_app, name="feedpower")
