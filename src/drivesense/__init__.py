@@ -17,6 +17,18 @@ from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.presets import table1_axis, table1_stage
 from drivesense.recording import Recording
 from drivesense.score import Score, score_estimate
+from drivesense import monitor
+from drivesense.machine.cutting_power import (CutConditions, average_tangential_force, chip_thickness_from_angles,
+                                              cutting_power, engagement_angle, force_per_depth)
+from drivesense.identify.coefficients import (CutTable, SeeSawWarning, TangentialFit, average_power,
+                                              calibrate_from_power, fit_tangential_coefficients, read_cut_table)
+from drivesense.identify.feed_power import FeedCuts, FeedPowerModel, fit_feed_power, per_speed_fits, read_feed_cuts
+from drivesense.identify.sensor import (SensorCalibration, calibrate_sensor, check_linearity, deconvolution_residual,
+                                        ratio_spectrum)
+from drivesense.monitor import (RunoutEstimate, WearReport, WearTracker, WearTrackerSettings, estimate_runout,
+                                percent_power_increase, track_wear)
+from drivesense.sim.tool_life import WearExperiment, simulate_tool_life, table1_experiments
+from drivesense.sim.electret import ElectretSensor, simulate_shaker_pair
 from drivesense.estimate.model_based import ModelBased
 from drivesense.identify.linear_axis import IdentificationReport, identify_axes, run_identification
 from drivesense.io.axes_file import read_axes_file, write_axes_file
@@ -31,6 +43,16 @@ __all__ = [
     "BallScrewAxis", "table1_axis", "table1_stage",
     "CurrentOnly", "RigidBody", "MEDOB", "VibrationMode", "SignalParams",
     "FrictionMap", "build_friction_map", "Score", "score_estimate", "__version__",
+]
+__all__ += [
+    "monitor", "CutConditions", "engagement_angle", "chip_thickness_from_angles", "cutting_power",
+    "average_tangential_force", "force_per_depth", "TangentialFit", "CutTable", "SeeSawWarning",
+    "fit_tangential_coefficients", "calibrate_from_power", "average_power", "read_cut_table",
+    "FeedCuts", "FeedPowerModel", "read_feed_cuts", "fit_feed_power", "per_speed_fits",
+    "SensorCalibration", "ratio_spectrum", "check_linearity", "calibrate_sensor", "deconvolution_residual",
+    "WearTracker", "WearTrackerSettings", "WearReport", "track_wear", "percent_power_increase",
+    "RunoutEstimate", "estimate_runout", "WearExperiment", "table1_experiments", "simulate_tool_life",
+    "ElectretSensor", "simulate_shaker_pair",
 ]
 __all__ += ["ModelBased", "LinearMotorAxis", "ThreeAxisModel", "linear_machine_model", "identify_axes",
             "run_identification", "IdentificationReport", "read_axes_file", "write_axes_file",
