@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import typer
 
-from drivesense.cli import (archive, core, feedpower, identify_frf, identify_linear, mtconnect, plot_cmd, sensor,
-                            wear, xml_cmd)
+from drivesense.cli import (archive, core, feedpower, identify_frf, identify_linear, learn, mtconnect, plot_cmd,
+                            sensor, wear, xml_cmd)
 
 __all__ = ["app", "identify_app", "main"]
 
@@ -23,7 +23,7 @@ identify_app = typer.Typer(no_args_is_help=True,
 identify_frf.register(identify_app)
 identify_linear.register(identify_app)
 app.add_typer(identify_app, name="identify")
-for module in (wear, feedpower, sensor, xml_cmd, archive, mtconnect, plot_cmd):
+for module in (learn, wear, feedpower, sensor, xml_cmd, archive, mtconnect, plot_cmd):
     module.register(app)
 
 

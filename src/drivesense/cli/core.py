@@ -127,13 +127,14 @@ def estimate(
     trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
     out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N] (model: force_x/y/z).")],
     axis_file: Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")] = None,
-    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration | model")] = "vibration",
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration | model | lstm | hybrid")] = "vibration",
     idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
     tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the estimate (and reference, if any).")] = None,
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
     axes_file: Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")] = None,
+    model_dir: Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")] = None,
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
@@ -141,15 +142,26 @@ def estimate(
     from drivesense.io import write_csv
     from drivesense.io.axis_file import read_axis_file
 
-    if method == "model":
+    if method in ("model", "lstm", "hybrid"):
         from drivesense.cli.identify_linear import estimate_model
 
         if idle or tare or axis_file:
-            raise ConfigError("--method model takes --axes AXES.toml, not --axis/--idle/--tare "
-                              "(identify the axes with 'drivesense identify linear')")
-        if axes_file is None:
-            raise ConfigError("--method model needs --axes AXES.toml (write one with 'drivesense identify linear')")
-        return estimate_model(trace, axes_file, out, json_path, plot)
+            raise ConfigError(f"--method {method} reads a 3-axis NC trace: it takes no --axis/--idle/--tare")
+        if method == "model":
+            if axes_file is None:
+                raise ConfigError("--method model needs --axes AXES.toml (write one with 'drivesense identify linear')")
+            from drivesense.estimate.model_based import ModelBased
+            from drivesense.io.axes_file import read_axes_file
+
+            est = ModelBased(read_axes_file(axes_file))
+        else:
+            if model_dir is None:
+                raise ConfigError(f"--method {method} needs --model MODEL (train one with 'drivesense train {method}')")
+            from drivesense.estimate.hybrid import Hybrid
+            from drivesense.estimate.lstm import LSTM
+
+            est = (Hybrid if method == "hybrid" else LSTM).load(model_dir)
+        return estimate_model(trace, est, out, json_path, plot)
     if axis_file is None:
         raise ConfigError(f"--method {method} needs --axis AXIS.toml (ball-screw axis file)")
     axis, signal = read_axis_file(axis_file)

@@ -84,26 +84,27 @@ def identify_linear(
     write_json(json_path, {"air_moves": [str(p) for p in air_moves], "axes_file": str(out), **report.to_dict()})
 
 
-def estimate_model(trace: Path, axes_file: Path, out: Path, json_path: Optional[Path] = None,
+def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None,
                    plot: Optional[Path] = None) -> None:
-    """``drivesense estimate TRACE --method model --axes AXES.toml``: Eq. 2 on a 3-axis NC trace."""
+    """``drivesense estimate TRACE --method model|lstm|hybrid``: X/Y/Z force from a 3-axis NC trace.
+
+    ``est`` is a ModelBased, LSTM or Hybrid estimator (anything with ``name``
+    and ``estimate(recording)`` returning ``force_x/y/z``).
+    """
     from drivesense.bench.linear_axis import plot_force_estimate
-    from drivesense.estimate.model_based import ModelBased
     from drivesense.io import write_csv
-    from drivesense.io.axes_file import read_axes_file
     from drivesense.score import score_estimate
 
-    est = ModelBased(read_axes_file(axes_file))
     rec = read_trace(trace)
     force = est.estimate(rec)
     write_csv(force, out)
-    info: dict = {"method": "model", "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
+    info: dict = {"method": est.name, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
                   "latency_s": force.meta["latency_s"], "output": str(out), "force_n": {}, "score_vs_reference": {}}
-    table = Table(title=f"model-based estimate of {trace.name}", show_header=False)
+    table = Table(title=f"{est.name} estimate of {trace.name}", show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the trace's declared delay)")
     window = tuple(rec.meta.get("score_window", (rec.t0, rec.t0 + rec.duration)))
-    for ch in est.output_channels:
+    for ch in ("force_x", "force_y", "force_z"):
         f = force[ch]
         info["force_n"][ch] = {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
                                "std": float(f.std())}
@@ -116,7 +117,7 @@ def estimate_model(trace: Path, axes_file: Path, out: Path, json_path: Optional[
     console.print(table)
     console.print(f"wrote {out}")
     if plot:
-        plot_force_estimate(rec, force, plot, title=f"model-based estimate: {trace.name}")
+        plot_force_estimate(rec, force, plot, title=f"{est.name} estimate: {trace.name}")
         info["plot"] = str(plot)
     write_json(json_path, info)
 

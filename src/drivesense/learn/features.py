@@ -101,8 +101,15 @@ def input_matrix(recording: Recording) -> np.ndarray:
     return np.column_stack([recording[c] for c in INPUT_CHANNELS])
 
 
-def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 120.0, order: int = 4) -> np.ndarray:
-    """Reference force low-passed zero-phase (Butterworth) at ``cutoff_hz`` [Hz], in N."""
+def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 120.0, order: int = 4,
+                    aligned: bool = True) -> np.ndarray:
+    """Reference force low-passed zero-phase (Butterworth) at ``cutoff_hz`` [Hz], in N.
+
+    With ``aligned`` the force is delayed by the trace's declared NC delay
+    (``meta["nc_delay_s"]``, e.g. a logger's anti-alias filter), so that it lines
+    up with the NC inputs: a causal network cannot undo that delay, and the
+    learned estimators declare it as their latency.
+    """
     recording.require(channel)
     f = recording[channel]
     nyq = 0.5 * recording.fs
@@ -111,7 +118,12 @@ def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 12
     sos = sps.butter(order, cutoff_hz, fs=recording.fs, output="sos")
     if f.size <= 3 * (2 * sos.shape[0] + 1):
         raise InvalidSignalError(f"trace '{recording.meta.get('name', '')}' is too short for the target filter")
-    return sps.sosfiltfilt(sos, f)
+    out = sps.sosfiltfilt(sos, f)
+    delay = float(recording.meta.get("nc_delay_s", 0.0)) if aligned else 0.0
+    if delay > 0:
+        idx = np.arange(out.size) - delay * recording.fs
+        out = np.interp(idx, np.arange(out.size), out)
+    return out
 
 
 def resample_to(recording: Recording, fs: float) -> Recording:

@@ -1,0 +1,85 @@
+"""``drivesense dataset build`` and ``drivesense train lstm|hybrid``: the learned reconstruction."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from drivesense.cli.common import console, err_console, friendly, progress_bar, write_json
+
+__all__ = ["register"]
+
+dataset_app = typer.Typer(no_args_is_help=True, help="Training data for the learned reconstruction.")
+
+
+@dataset_app.command("build")
+@friendly
+def dataset_build(
+    out: Annotated[Optional[Path], typer.Option("--out", help="Dataset folder (default: the user cache).")] = None,
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the index summary here.")] = None,
+) -> None:
+    """Simulate the third paper's process grid (seeded, cached; about 190 runs)."""
+    from drivesense.bench.learn import default_dataset_dir
+    from drivesense.learn.dataset import build_dataset, plan_runs
+
+    out = out or default_dataset_dir()
+    runs = plan_runs()
+    with progress_bar() as bar:
+        task = bar.add_task("simulate runs", total=len(runs))
+        index = build_dataset(out, runs, progress=lambda name: bar.advance(task))
+    splits: dict = {}
+    for entry in index["runs"]:
+        splits[entry["spec"]["split"]] = splits.get(entry["spec"]["split"], 0) + 1
+    table = Table(title=f"dataset in {out}", show_header=False)
+    table.add_row("runs", ", ".join(f"{k}: {v}" for k, v in splits.items()))
+    table.add_row("held-out process type", index["held_out_process"])
+    table.add_row("exclusion rule", index["exclusion_rule"])
+    table.add_row("size on disk", f"{index['bytes_on_disk'] / 2**20:.1f} MiB")
+    console.print(table)
+    write_json(json_path, {k: v for k, v in index.items() if k != "runs"} | {"splits": splits, "folder": str(out)})
+
+
+def train(
+    kind: Annotated[str, typer.Argument(help="lstm | hybrid")],
+    data: Annotated[Path, typer.Option("--data", help="Dataset folder (built, or your own .nc/.csv traces).")],
+    out: Annotated[Path, typer.Option("--out", help="Model folder to write.")],
+    axes: Annotated[Optional[Path], typer.Option(help="AXES.toml of the identified axes (hybrid only).")] = None,
+    epochs: Annotated[int, typer.Option(help="Maximum epochs per network.")] = 30,
+    seed: Annotated[int, typer.Option(help="Seed.")] = 0,
+    json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the training record here.")] = None,
+) -> None:
+    """Train one network per force component (and save state_dicts + config)."""
+    from drivesense.errors import ConfigError
+    from drivesense.estimate.hybrid import Hybrid
+    from drivesense.estimate.lstm import LSTM
+    from drivesense.learn.dataset import load_dataset
+    from drivesense.learn.train import TrainConfig, require_torch
+
+    require_torch()
+    if kind not in ("lstm", "hybrid"):
+        raise ConfigError(f"unknown learned method {kind!r}; choose lstm or hybrid")
+    kwargs = {}
+    if kind == "hybrid":
+        if axes is None:
+            raise ConfigError("train hybrid needs --axes AXES.toml (from drivesense identify linear)")
+        from drivesense.io.axes_file import read_axes_file
+
+        kwargs["model_based"] = read_axes_file(axes)
+    runs = [rec for _, rec in load_dataset(data)]
+    est = (Hybrid if kind == "hybrid" else LSTM)(config=TrainConfig(epochs=epochs, seed=seed))
+    est.fit(runs, progress=lambda line: err_console.print(line, highlight=False), **kwargs)
+    est.save(out)
+    hist = est.model.history
+    console.print(f"trained {kind} on {hist['runs']['train']} runs (validation {hist['runs']['val']}) in "
+                  f"{hist['total_seconds']:.0f} s; epochs {hist['epochs']}; wrote {out}")
+    write_json(json_path, {"kind": kind, "model": str(out), "history": hist,
+                           "interval_scale": est.model.interval_scale})
+
+
+def register(root: typer.Typer) -> None:
+    """Add ``dataset`` and ``train`` to the root application."""
+    root.add_typer(dataset_app, name="dataset")
+    root.command("train")(friendly(train))

@@ -1,0 +1,247 @@
+"""Training and test data for the learned reconstruction: the third paper's process grid, simulated.
+
+The grid is Table 1 of the third paper (``a_p`` 1-4 mm, ``a_e`` 1-10 mm,
+``v_f`` 300-800 mm/min, ``n`` 2600-6000 min^-1) over the simulator's process
+types.  Combinations that would overload the tool are dropped by an explicit
+rule (:func:`allowed`): the chip cross-section ``a_p * a_e`` may not exceed
+24 mm^2 (10 mm end mill in C45), and full-width grooves are limited to
+``a_p <= 2 mm`` (chatter-prone full immersion).  The split is by process
+parameters: test runs use combinations that appear in no training run, and
+one process type is held out entirely.  Everything is seeded and cached on
+disk (one netCDF file per run plus ``index.json``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.recording import Recording
+
+__all__ = ["RunSpec", "allowed", "plan_runs", "build_dataset", "load_dataset", "load_folder", "HELD_OUT_PROCESS",
+           "simulator_fingerprint"]
+
+#: Process type never shown to the networks during training.
+HELD_OUT_PROCESS = "side_-x+y"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One simulated run.
+
+    Attributes
+    ----------
+    process : str
+        Process type (see :func:`drivesense.sim.machining.process_names`).
+    a_p, a_e : float
+        Axial and radial depth of cut [m].
+    v_f : float
+        Feed speed [m/s].
+    n : float
+        Spindle speed [min^-1].
+    seed : int
+        Simulation seed.
+    split : str
+        ``"train"``, ``"val"`` (early stopping), ``"test"`` (held-out parameters)
+        or ``"test_process"`` (held-out process type).
+    """
+
+    process: str
+    a_p: float
+    a_e: float
+    v_f: float
+    n: float
+    seed: int
+    split: str
+
+    @property
+    def name(self) -> str:
+        """File-friendly identifier."""
+        return (f"{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}_vf{self.v_f * 60e3:g}_n{self.n:g}"
+                f"_s{self.seed}")
+
+
+def allowed(process: str, a_p: float, a_e: float) -> bool:
+    """Whether a combination is kept: chip cross-section <= 24 mm^2, grooves a_p <= 2 mm (see module doc)."""
+    if process.startswith("groove"):
+        return a_p <= 2e-3 + 1e-12
+    return a_p * a_e <= 24e-6 + 1e-15
+
+
+def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_process: int = 8,
+              seed: int = 2021) -> list[RunSpec]:
+    """Draw the runs: parameter combinations from the grid, process types in turn.
+
+    Parameters
+    ----------
+    n_train, n_val, n_test : int
+        Runs per split; test combinations are disjoint from training ones.
+    n_held_out_process : int
+        Runs of :data:`HELD_OUT_PROCESS`.
+    seed : int
+        Seed of the draw (and base of the simulation seeds).
+
+    Returns
+    -------
+    list of RunSpec
+    """
+    from drivesense.sim.machining import process_names, table1_process_grid
+
+    grid = table1_process_grid()
+    processes = [p for p in process_names() if p != HELD_OUT_PROCESS]
+    combos = list(itertools.product(grid["a_p"], grid["a_e"], grid["v_f"], grid["n"]))
+    rng = np.random.default_rng(seed)
+    rng.shuffle(combos)
+    runs: list[RunSpec] = []
+    used_test: set = set()
+    counts = {"train": n_train, "val": n_val, "test": n_test}
+    it = iter(combos)
+    k = 0
+    for split in ("test", "val", "train"):
+        made = 0
+        while made < counts[split]:
+            try:
+                a_p, a_e, v_f, n = next(it)
+            except StopIteration:
+                raise ConfigError("the process grid holds too few allowed combinations for the requested runs") \
+                    from None
+            process = processes[k % len(processes)]
+            if not allowed(process, a_p, a_e):
+                continue
+            if split == "test":
+                used_test.add((a_p, a_e, v_f, n))
+            elif (a_p, a_e, v_f, n) in used_test:
+                continue
+            runs.append(RunSpec(process, a_p, a_e, v_f, n, seed + len(runs), split))
+            made += 1
+            k += 1
+    for j in range(n_held_out_process):
+        a_p, a_e, v_f, n = combos[(7 * j + 3) % len(combos)]
+        while not allowed(HELD_OUT_PROCESS, a_p, a_e):
+            a_p = a_p - 1e-3
+        runs.append(RunSpec(HELD_OUT_PROCESS, a_p, a_e, v_f, n, seed + len(runs), "test_process"))
+    return runs
+
+
+def simulator_fingerprint() -> str:
+    """Hash of the simulator's source: a cached run is reused only if the code that made it is unchanged."""
+    import hashlib
+    import importlib
+
+    h = hashlib.sha256()
+    for name in ("drivesense.sim.machining", "drivesense.sim.linear_machine", "drivesense.machine.linear_motor",
+                 "drivesense.machine.milling"):
+        h.update(Path(importlib.import_module(name).__file__).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _write_index(path: Path, payload: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload, indent=1), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
+                  progress: Callable[[str], None] | None = None, simulate=None) -> dict:
+    """Simulate and cache the runs in ``out_dir`` (runs already cached with the same spec are kept).
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Cache folder (created).
+    runs : sequence of RunSpec, optional
+        Default :func:`plan_runs`.
+    progress : callable, optional
+        Called with each run's name.
+    simulate : callable, optional
+        ``simulate(spec) -> Recording`` (default: :func:`drivesense.sim.machining.simulate_process`).
+
+    Returns
+    -------
+    dict
+        The index: runs with their split and file, ``bytes_on_disk``.
+    """
+    from drivesense.sim.machining import simulate_process
+
+    out = Path(out_dir)
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    runs = list(runs) if runs is not None else plan_runs()
+    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed))
+    index_path = out / "index.json"
+    fingerprint = simulator_fingerprint()
+    old = {}
+    if index_path.exists():
+        previous = json.loads(index_path.read_text())
+        if previous.get("simulator") == fingerprint:
+            old = {r["file"]: r for r in previous["runs"]}
+    entries = []
+    for spec in runs:
+        file = f"runs/{spec.name}.nc"
+        if not (file in old and (out / file).exists() and old[file]["spec"] == asdict(spec)):
+            rec = simulate(spec)
+            rec.with_meta(split=spec.split).save(out / file)
+        entries.append({"file": file, "spec": asdict(spec)})
+        if progress:
+            progress(spec.name)
+    size = sum((out / e["file"]).stat().st_size for e in entries)
+    index = {"format": "drivesense-dataset-1", "simulator": fingerprint, "runs": entries, "bytes_on_disk": size,
+             "exclusion_rule": "a_p*a_e <= 24 mm^2; grooves a_p <= 2 mm", "held_out_process": HELD_OUT_PROCESS}
+    _write_index(index_path, index)
+    return index
+
+
+def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
+    """Load a dataset folder: a built one (``index.json``) or any folder of recordings.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Built dataset, or a user's folder of ``.nc`` / ``.csv`` traces with
+        canonical channel names and reference ``force_{ax}`` channels (their
+        split is then decided by :func:`load_folder`).
+
+    Returns
+    -------
+    list of (RunSpec or None, Recording)
+    """
+    folder = Path(folder)
+    index = folder / "index.json"
+    if not index.exists():
+        return load_folder(folder)
+    data = json.loads(index.read_text())
+    out = []
+    for entry in data["runs"]:
+        rec = Recording.load(folder / entry["file"])
+        out.append((RunSpec(**entry["spec"]), rec))
+    return out
+
+
+def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0) -> list[tuple[RunSpec | None, Recording]]:
+    """A user's own traces: every ``.nc`` and ``.csv`` in ``folder``; a seeded share goes to validation.
+
+    Traces keep their sample rate here; :mod:`drivesense.learn.train` resamples
+    explicitly to the model's rate.
+    """
+    from drivesense.io import read_recording
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"dataset folder '{folder}' does not exist")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".nc", ".csv"))
+    if not files:
+        raise InvalidSignalError(f"'{folder}' holds no .nc or .csv traces")
+    rng = np.random.default_rng(seed)
+    n_val = max(1, int(round(val_fraction * len(files)))) if len(files) > 2 else 0
+    val = set(rng.choice(len(files), n_val, replace=False).tolist()) if n_val else set()
+    out = []
+    for i, path in enumerate(files):
+        rec = read_recording(path)
+        out.append((None, rec.with_meta(split="val" if i in val else "train")))
+    return out

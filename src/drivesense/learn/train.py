@@ -1,0 +1,381 @@
+"""Training the LSTM force reconstruction (third paper, Sec. 2.3) and its hybrid with the model.
+
+One network per force component: 3 stacked LSTM layers of 20 cells, dropout
+between them, a linear output (Eq. 11-16).  Plain PyTorch, deterministic seeds,
+early stopping on validation runs that are evaluated like inference (whole
+traces from a zero state).  Training uses random windows of the training runs;
+the first ``burn_in`` samples of a window only warm the state up.
+
+``kind="hybrid"`` trains the same networks on the residual of
+:class:`~drivesense.estimate.model_based.ModelBased` (target = filtered force
+minus the model's estimate), with the model's estimate as an extra input.
+
+Prediction intervals: Monte-Carlo dropout gives a per-sample spread; its scale
+is calibrated on the validation runs (normalised split-conformal), so a
+nominal 90 % interval covers 90 % of validation samples.
+
+A trained model is a folder: ``config.json`` (architecture, scalers, interval
+calibration, training history) and one ``weights_{x,y,z}.pt`` per network
+(``state_dict``, loaded with ``weights_only=True``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, filtered_target,
+                                       input_matrix, resample_to)
+from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm
+from drivesense.recording import Recording
+
+__all__ = ["TrainConfig", "LearnedModel", "train_model", "require_torch"]
+
+
+def require_torch():
+    """Import torch or raise a clear error saying how to install it."""
+    try:
+        import torch
+    except ImportError:
+        raise ConfigError("the learned methods need PyTorch: pip install torch==2.13.0 (CPU build), "
+                          "then pip install 'drivesense[learn]'") from None
+    return torch
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Architecture and training settings.
+
+    Parameters
+    ----------
+    hidden : int
+        Cells per LSTM layer.
+    layers : int
+        Stacked layers.
+    dropout : float
+        Dropout between layers (training and Monte-Carlo sampling).
+    fs : float
+        Sample rate the model works at [Hz] (traces are resampled explicitly).
+    window : int
+        Training window [samples].
+    burn_in : int
+        Leading samples of a window excluded from the loss.
+    batch : int
+        Windows per batch.
+    windows_per_epoch : int
+        Windows drawn per epoch.
+    epochs : int
+        Maximum epochs.
+    patience : int
+        Epochs without validation improvement before stopping.
+    lr : float
+        Adam learning rate.
+    seed : int
+        Seed of everything random.
+    mc_samples : int
+        Monte-Carlo dropout samples for intervals.
+    coverage : float
+        Nominal coverage of the intervals.
+    """
+
+    hidden: int = 20
+    layers: int = 3
+    dropout: float = 0.1
+    fs: float = 250.0
+    window: int = 250
+    burn_in: int = 50
+    batch: int = 128
+    windows_per_epoch: int = 2048
+    epochs: int = 30
+    patience: int = 5
+    lr: float = 3e-3
+    seed: int = 0
+    mc_samples: int = 16
+    coverage: float = 0.9
+
+
+@dataclass
+class LearnedModel:
+    """A trained reconstruction (see module docstring for the folder format).
+
+    Attributes
+    ----------
+    kind : str
+        ``"lstm"`` or ``"hybrid"``.
+    config : TrainConfig
+        Settings it was trained with.
+    input_scaler : Scaler
+        Input scaling.
+    target_scalers : dict of str to TargetScaler
+        Eq. 17 per force channel.
+    weights : dict of str to LSTMWeights
+        Network per force channel.
+    force_scale : dict of str to float
+        Largest absolute training force per channel [N] (scales a hybrid's model input).
+    interval_scale : dict of str to float
+        Calibrated multiplier of the Monte-Carlo spread per channel.
+    history : dict
+        Training record (losses, epochs, seconds).
+    model_based : object, optional
+        The :class:`~drivesense.machine.linear_motor.ThreeAxisModel` of a hybrid.
+    """
+
+    kind: str
+    config: TrainConfig
+    input_scaler: Scaler
+    target_scalers: dict
+    weights: dict
+    force_scale: dict = field(default_factory=dict)
+    interval_scale: dict = field(default_factory=dict)
+    history: dict = field(default_factory=dict)
+    model_based: object = None
+
+    # ------------------------------------------------------------- features
+    def inputs(self, recording: Recording) -> tuple[np.ndarray, dict]:
+        """Scaled NC inputs and the model part of each output [N] (zeros for a plain LSTM)."""
+        x = self.input_scaler.transform(input_matrix(recording))
+        if self.kind == "hybrid":
+            from drivesense.estimate.model_based import ModelBased
+
+            est = ModelBased(self.model_based).estimate(recording)
+            return x, {ch: est[ch] for ch in TARGET_CHANNELS}
+        return x, {ch: np.zeros(recording.n_samples) for ch in TARGET_CHANNELS}
+
+    def network_input(self, x: np.ndarray, base: np.ndarray, channel: str) -> np.ndarray:
+        """Inputs of ``channel``'s network: the NC inputs, plus the scaled model estimate for a hybrid."""
+        if self.kind != "hybrid":
+            return x
+        return np.column_stack([x, base / self.force_scale[channel]]).astype(np.float32)
+
+    def predict(self, recording: Recording, *, intervals: bool = False) -> dict[str, np.ndarray]:
+        """Force per channel [N]; with ``intervals``, also ``{ch}_lower`` / ``{ch}_upper``."""
+        out = {}
+        x_all, bases = self.inputs(recording)
+        for ch in TARGET_CHANNELS:
+            base = bases[ch]
+            x = self.network_input(x_all, base, ch)
+            w = self.weights[ch]
+            ts = self.target_scalers[ch]
+            out[ch] = base + ts.inverse(run_lstm(w, LSTMState(w), x))
+            if intervals:
+                spread = _mc_spread(w, x, self.config.mc_samples, self.config.seed) * 2.0 * ts.f_max
+                half = self.interval_scale[ch] * (spread + 1e-3 * ts.f_max)
+                out[f"{ch}_lower"], out[f"{ch}_upper"] = out[ch] - half, out[ch] + half
+        return out
+
+    # ---------------------------------------------------------- persistence
+    def save(self, folder) -> Path:
+        """Write the model folder (config.json + weights_*.pt)."""
+        torch = require_torch()
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        for ch in TARGET_CHANNELS:
+            w = self.weights[ch]
+            torch.save(_to_state_dict(w, torch), folder / f"weights_{ch[-1]}.pt")
+        cfg = {"format": "drivesense-learned-1", "kind": self.kind, "config": asdict(self.config),
+               "inputs": list(INPUT_CHANNELS), "targets": list(TARGET_CHANNELS),
+               "input_scaler": self.input_scaler.to_dict(),
+               "target_scalers": {k: v.f_max for k, v in self.target_scalers.items()},
+               "force_scale": self.force_scale, "interval_scale": self.interval_scale, "history": self.history}
+        if self.model_based is not None:
+            from drivesense.io.axes_file import write_axes_file
+
+            write_axes_file(folder / "model_based.toml", self.model_based)
+            cfg["model_based"] = "model_based.toml"
+        tmp = folder / ".config.json.tmp"
+        tmp.write_text(json.dumps(cfg, indent=1), encoding="utf-8")
+        tmp.replace(folder / "config.json")
+        return folder
+
+    @classmethod
+    def load(cls, folder) -> "LearnedModel":
+        """Read a model folder written by :meth:`save` (``torch.load(weights_only=True)``)."""
+        torch = require_torch()
+        folder = Path(folder)
+        path = folder / "config.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"'{folder}' is not a drivesense model folder (no config.json)")
+        cfg = json.loads(path.read_text(encoding="utf-8"))
+        if cfg.get("format") != "drivesense-learned-1":
+            raise ConfigError(f"'{path}': unknown model format {cfg.get('format')!r}")
+        config = TrainConfig(**cfg["config"])
+        weights = {}
+        for ch in TARGET_CHANNELS:
+            state = torch.load(folder / f"weights_{ch[-1]}.pt", weights_only=True)
+            weights[ch] = LSTMWeights.from_state_dict(state, config.layers, config.dropout)
+        model_based = None
+        if "model_based" in cfg:
+            from drivesense.io.axes_file import read_axes_file
+
+            model_based = read_axes_file(folder / cfg["model_based"])
+        return cls(cfg["kind"], config, Scaler.from_dict(cfg["input_scaler"]),
+                   {k: TargetScaler(v) for k, v in cfg["target_scalers"].items()}, weights,
+                   cfg.get("force_scale", {}), cfg.get("interval_scale", {}), cfg.get("history", {}), model_based)
+
+
+def _to_state_dict(w: LSTMWeights, torch) -> dict:
+    state = {}
+    for k in range(w.layers):
+        n_in = int(w.in_dims[k])
+        state[f"lstm.weight_ih_l{k}"] = torch.from_numpy(w.w_ih[k, :, :n_in].copy())
+        state[f"lstm.weight_hh_l{k}"] = torch.from_numpy(w.w_hh[k].copy())
+        state[f"lstm.bias_ih_l{k}"] = torch.from_numpy(w.bias[k].copy())
+        state[f"lstm.bias_hh_l{k}"] = torch.zeros(w.bias.shape[1], dtype=torch.float64)
+    state["head.weight"] = torch.from_numpy(w.head_w[None, :].copy())
+    state["head.bias"] = torch.tensor([w.head_b], dtype=torch.float64)
+    return state
+
+
+def _mc_spread(w: LSTMWeights, x: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    draws = np.stack([run_lstm(w, LSTMState(w), x, seed=seed + 1 + k) for k in range(samples)])
+    return draws.std(axis=0)
+
+
+def _prepare(runs: Sequence[Recording], fs: float) -> list[Recording]:
+    out = []
+    for rec in runs:
+        rec = resample_to(rec, fs)
+        rec.require(*INPUT_CHANNELS, *TARGET_CHANNELS)
+        out.append(rec)
+    return out
+
+
+def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | None = None, model_based=None,
+                progress: Callable[[str], None] | None = None) -> LearnedModel:
+    """Train the three networks.
+
+    Parameters
+    ----------
+    kind : {"lstm", "hybrid"}
+        Plain LSTM, or LSTM on the residual of the model-based reconstruction.
+    runs : sequence of Recording
+        Traces with the NC inputs and reference forces; ``meta["split"]`` is
+        ``"train"`` or ``"val"`` (others are ignored).
+    config : TrainConfig, optional
+        Settings.
+    model_based : ThreeAxisModel, optional
+        Identified axes, required for ``hybrid``.
+    progress : callable, optional
+        Called with a status line after each epoch.
+
+    Returns
+    -------
+    LearnedModel
+    """
+    torch = require_torch()
+    config = config or TrainConfig()
+    if kind not in ("lstm", "hybrid"):
+        raise ConfigError(f"unknown learned method {kind!r}; choose lstm or hybrid")
+    if kind == "hybrid" and model_based is None:
+        raise ConfigError("a hybrid needs the identified axes (model_based=...) for its model part")
+    t_start = time.perf_counter()
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    train = _prepare([r for r in runs if r.meta.get("split") == "train"], config.fs)
+    val = _prepare([r for r in runs if r.meta.get("split") == "val"], config.fs)
+    if not train or not val:
+        raise InvalidSignalError(f"training needs runs with meta split 'train' and 'val' "
+                                 f"(got {len(train)} train, {len(val)} val)")
+    scaler = Scaler.fit([input_matrix(r) for r in train])
+    model = LearnedModel(kind, config, scaler, {}, {}, model_based=model_based)
+    prepared = {name: [(rec, *model.inputs(rec)) for rec in group] for name, group in (("train", train), ("val", val))}
+    history: dict = {"seconds": {}, "epochs": {}, "train_loss": {}, "val_loss": {}}
+    for ch in TARGET_CHANNELS:
+        data = {}
+        for name, group in prepared.items():
+            data[name] = [(model_input, filtered_target(rec, ch), bases[ch])
+                          for rec, model_input, bases in group]
+        model.force_scale[ch] = max(float(np.max(np.abs(t))) for _, t, _ in data["train"]) or 1.0
+        model.target_scalers[ch] = TargetScaler(max(float(np.max(np.abs(t - b))) for _, t, b in data["train"]) or 1.0)
+        t0 = time.perf_counter()
+        weights, hist = _train_one(torch, model, ch, data["train"], data["val"], config, progress)
+        model.weights[ch] = weights
+        history["seconds"][ch] = time.perf_counter() - t0
+        for key in ("epochs", "train_loss", "val_loss"):
+            history[key][ch] = hist[key]
+        model.interval_scale[ch] = _calibrate(model, ch, data["val"])
+    history["total_seconds"] = time.perf_counter() - t_start
+    history["runs"] = {"train": len(train), "val": len(val)}
+    model.history = history
+    return model
+
+
+def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainConfig, progress):
+    rng = np.random.default_rng(config.seed)
+    ts = model.target_scalers[ch]
+    xs = [model.network_input(x, b, ch).astype(np.float32) for x, _, b in train]
+    ys = [ts.transform(t - b) for _, t, b in train]
+    vx = [model.network_input(x, b, ch).astype(np.float32) for x, _, b in val]
+    vy = [ts.transform(t - b) for _, t, b in val]
+    n_in = xs[0].shape[1]
+
+    class Net(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.lstm = torch.nn.LSTM(n_in, config.hidden, config.layers, batch_first=True, dropout=config.dropout)
+            self.head = torch.nn.Linear(config.hidden, 1)
+
+        def forward(self, x):
+            out, _ = self.lstm(x)
+            return self.head(out)[..., 0]
+
+    torch.manual_seed(config.seed + 101 * TARGET_CHANNELS.index(ch))
+    net = Net()
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    lengths = np.array([x.shape[0] for x in xs])
+    ok = np.flatnonzero(lengths > config.window)
+    if ok.size == 0:
+        raise InvalidSignalError(f"no training run is longer than the window ({config.window} samples)")
+    weights_by_len = (lengths[ok] - config.window) / (lengths[ok] - config.window).sum()
+    best, best_loss, since = None, np.inf, 0
+    hist = {"epochs": 0, "train_loss": [], "val_loss": []}
+    for epoch in range(config.epochs):
+        net.train()
+        losses = []
+        for _ in range(max(1, config.windows_per_epoch // config.batch)):
+            picks = rng.choice(ok, config.batch, p=weights_by_len)
+            starts = [rng.integers(0, lengths[i] - config.window) for i in picks]
+            xb = torch.from_numpy(np.stack([xs[i][s:s + config.window] for i, s in zip(picks, starts)]))
+            yb = torch.from_numpy(np.stack([ys[i][s:s + config.window] for i, s in zip(picks, starts)]))
+            pred = net(xb)
+            loss = ((pred[:, config.burn_in:] - yb[:, config.burn_in:]) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(loss.item())
+        net.eval()
+        with torch.no_grad():
+            v = np.mean([float(((net(torch.from_numpy(x[None]))[0] - torch.from_numpy(y)) ** 2).mean())
+                         for x, y in zip(vx, vy)])
+        hist["train_loss"].append(float(np.mean(losses)))
+        hist["val_loss"].append(float(v))
+        hist["epochs"] = epoch + 1
+        if progress:
+            progress(f"{model.kind} {ch}: epoch {epoch + 1}, train {np.mean(losses):.2e}, val {v:.2e}")
+        if v < best_loss - 1e-7:
+            best_loss, since = v, 0
+            best = {k: t.detach().clone() for k, t in net.state_dict().items()}
+        else:
+            since += 1
+            if since >= config.patience:
+                break
+    return LSTMWeights.from_state_dict(best, config.layers, config.dropout), hist
+
+
+def _calibrate(model: LearnedModel, ch: str, val) -> float:
+    """Scale of the MC spread so that the nominal coverage holds on the validation runs."""
+    w = model.weights[ch]
+    ts = model.target_scalers[ch]
+    ratios = []
+    for x_all, tgt, base in val:
+        x = model.network_input(x_all, base, ch)
+        pred = base + ts.inverse(run_lstm(w, LSTMState(w), x))
+        spread = _mc_spread(w, x, model.config.mc_samples, model.config.seed) * 2.0 * ts.f_max + 1e-3 * ts.f_max
+        ratios.append(np.abs(tgt - pred) / spread)
+    return float(np.quantile(np.concatenate(ratios), model.config.coverage))

@@ -1,0 +1,118 @@
+"""Learned reconstruction end to end on a tiny grid: training reduces the loss, save/load, streaming = batch,
+the hybrid, the CLI, and the clear message when PyTorch is missing."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from drivesense.errors import ConfigError
+from drivesense.learn.dataset import RunSpec, allowed, build_dataset, load_dataset, plan_runs
+
+torch = pytest.importorskip("torch")
+
+from drivesense.cli import app  # noqa: E402
+from drivesense.estimate.hybrid import Hybrid  # noqa: E402
+from drivesense.estimate.lstm import LSTM  # noqa: E402
+from drivesense.learn.train import TrainConfig  # noqa: E402
+
+TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_in=30, mc_samples=4, seed=1)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ds")
+    runs = plan_runs(n_train=4, n_val=2, n_test=1, n_held_out_process=1, seed=7)
+    index = build_dataset(folder, runs)
+    return folder, index, [rec for _, rec in load_dataset(folder)]
+
+
+def test_plan_respects_the_rule_and_the_split():
+    runs = plan_runs()
+    assert len([r for r in runs if r.split in ("train", "val", "test")]) >= 180
+    assert all(allowed(r.process, r.a_p, r.a_e) for r in runs)
+    train = {(r.a_p, r.a_e, r.v_f, r.n) for r in runs if r.split == "train"}
+    test = {(r.a_p, r.a_e, r.v_f, r.n) for r in runs if r.split == "test"}
+    assert not train & test
+    held = {r.process for r in runs if r.split == "test_process"}
+    assert len(held) == 1 and held.isdisjoint({r.process for r in runs if r.split != "test_process"})
+    assert plan_runs() == runs  # seeded
+
+
+def test_dataset_is_cached_and_states_its_size(tiny):
+    folder, index, runs = tiny
+    assert index["bytes_on_disk"] > 0 and len(runs) == 8
+    mtimes = {p: p.stat().st_mtime_ns for p in (folder / "runs").iterdir()}
+    build_dataset(folder, [RunSpec(**e["spec"]) for e in index["runs"]])
+    assert {p: p.stat().st_mtime_ns for p in (folder / "runs").iterdir()} == mtimes
+
+
+@pytest.fixture(scope="module")
+def trained(tiny):
+    _, _, runs = tiny
+    return LSTM(config=TINY).fit(runs)
+
+
+def test_training_reduces_the_loss(trained):
+    hist = trained.model.history
+    for ch, losses in hist["train_loss"].items():
+        assert losses[-1] < losses[0], ch
+
+
+def test_streaming_equals_batch_and_save_load(trained, tiny, tmp_path):
+    _, _, runs = tiny
+    rec = next(r for r in runs if r.meta["split"] == "test")
+    batch = trained.estimate(rec)
+    stream = trained.stream(rec.fs)
+    parts = [stream.push({c: rec[c][i:i + 25] for c in rec.channels}) for i in range(0, rec.n_samples, 25)]
+    for ch in ("force_x", "force_y", "force_z"):
+        assert np.array_equal(np.concatenate([p[ch] for p in parts]), batch[ch])
+    trained.save(tmp_path / "m")
+    again = LSTM.load(tmp_path / "m")
+    assert np.array_equal(again.estimate(rec)["force_x"], batch["force_x"])
+    with pytest.raises(ConfigError, match="lstm"):
+        Hybrid.load(tmp_path / "m")
+
+
+def test_intervals_are_ordered(trained, tiny):
+    rec = tiny[2][0]
+    out = trained.estimate(rec, intervals=True)
+    assert np.all(out["force_x_lower"] <= out["force_x"]) and np.all(out["force_x"] <= out["force_x_upper"])
+
+
+def test_hybrid_needs_the_model_and_runs(tiny):
+    from drivesense.machine.linear_motor import linear_machine_model
+
+    _, _, runs = tiny
+    with pytest.raises(ConfigError, match="model_based"):
+        Hybrid(config=TINY).fit(runs)
+    hyb = Hybrid(config=TINY).fit(runs, model_based=linear_machine_model())
+    out = hyb.estimate(runs[0])
+    assert np.all(np.isfinite(out["force_y"]))
+
+
+def test_cli_train_and_estimate(tiny, tmp_path):
+    folder, _, runs = tiny
+    res = CliRunner().invoke(app, ["train", "lstm", "--data", str(folder), "--out", str(tmp_path / "m"),
+                                   "--epochs", "1", "--json", str(tmp_path / "t.json")])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "t.json").read_text())["kind"] == "lstm"
+    runs[0].save(tmp_path / "trace.nc")
+    res = CliRunner().invoke(app, ["estimate", str(tmp_path / "trace.nc"), "--method", "lstm", "--model",
+                                   str(tmp_path / "m"), "--out", str(tmp_path / "f.csv"), "--json", str(tmp_path / "e.json")])
+    assert res.exit_code == 0, res.output
+    info = json.loads((tmp_path / "e.json").read_text())
+    assert info["method"] == "lstm" and set(info["force_n"]) == {"force_x", "force_y", "force_z"}
+    res = CliRunner().invoke(app, ["estimate", str(tmp_path / "trace.nc"), "--method", "hybrid",
+                                   "--out", str(tmp_path / "f.csv")])
+    assert res.exit_code == 2 and "--model" in res.output
+
+
+def test_missing_torch_gives_a_clear_message(monkeypatch, tiny):
+    monkeypatch.setitem(sys.modules, "torch", None)
+    with pytest.raises(ConfigError, match="pip install torch"):
+        LSTM(config=TINY).fit(tiny[2])
