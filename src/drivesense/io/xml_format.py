@@ -33,7 +33,6 @@ from __future__ import annotations
 import binascii
 import getpass
 import json
-import math
 import re
 import uuid
 from collections.abc import Mapping, Sequence
@@ -257,83 +256,6 @@ def _json_xml(value: Any, key: str | None = None) -> str:
 
 def _local(tag: Any) -> str:
     return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
-
-
-def _scalar(text: str) -> Any:
-    try:
-        v = float(text)
-    except ValueError:
-        return text
-    return int(text) if _INT.match(text) else (v if math.isfinite(v) else text)
-
-
-def _xml_json(el: Any, where: str) -> Any:
-    """Inverse of :func:`_json_xml` for one ``j:*`` element."""
-    kind, text = _local(el.tag), el.text or ""
-    if el.get("escaped") == "true":
-        try:
-            text = json.loads(f'"{text}"')
-        except ValueError:
-            raise InvalidSignalError(f"{where}, line {el.sourceline}: bad escaped j:string") from None
-    if kind == "string":
-        return text
-    if kind == "null":
-        return None
-    if kind == "boolean":
-        if text.strip() not in ("true", "false", "1", "0"):
-            raise InvalidSignalError(f"{where}, line {el.sourceline}: j:boolean {text!r:.30}")
-        return text.strip() in ("true", "1")
-    if kind == "number":
-        v = _scalar(text.strip())
-        if isinstance(v, str):
-            raise InvalidSignalError(f"{where}, line {el.sourceline}: j:number {text!r:.30} is not a "
-                                     "finite number")
-        return v
-    children = [c for c in el if isinstance(c.tag, str) and c.tag.startswith(_J)]
-    if kind == "array":
-        return [_xml_json(c, where) for c in children]
-    if kind == "map":
-        out = {}
-        for c in children:
-            key = c.get("key")
-            if key is None:
-                raise InvalidSignalError(f"{where}, line {c.sourceline}: j:{_local(c.tag)} in a j:map "
-                                         "has no key attribute")
-            if c.get("escaped-key") == "true":
-                key = json.loads(f'"{key}"')
-            out[key] = _xml_json(c, where)
-        return out
-    raise InvalidSignalError(f"{where}, line {el.sourceline}: unknown JSON element j:{kind}")
-
-
-def _generic(el: Any) -> Any:
-    """Foreign XML as nested dicts: ``@attr``, child elements by local name, ``#text``."""
-    out: dict[str, Any] = {f"@{_local(k) or k}": v for k, v in el.attrib.items()}
-    for child in el:
-        if not isinstance(child.tag, str):
-            continue
-        key, value = _local(child.tag), _generic(child)
-        if key in out:
-            out[key] = (out[key] if isinstance(out[key], list) else [out[key]]) + [value]
-        else:
-            out[key] = value
-    text = (el.text or "").strip()
-    if not out:
-        return _scalar(text) if text else None
-    if text:
-        out["#text"] = _scalar(text)
-    return out
-
-
-def _free_content(el: Any, where: str) -> tuple[bool, Any]:
-    """(present, value) of a configuration/state element."""
-    for child in el:
-        if isinstance(child.tag, str) and child.tag == _J + "map":
-            return True, _xml_json(child, where)
-    value = _generic(el)
-    if value is None or value == {}:
-        return False, None
-    return True, value if isinstance(value, dict) else {"#text": value}
 
 
 def _canonical_personnel(value: Any) -> bool:
