@@ -288,11 +288,9 @@ def plot_force_estimate(trace: Recording, estimate: Recording, path: str | Path,
     -------
     Path
     """
-    import matplotlib
+    from drivesense.plot import _pyplot
 
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     axes = tuple(axes or [c.split("_", 1)[1] for c in estimate.channels if c.startswith("force_")])
     lat = float(estimate.meta.get("latency_s", 0.0))
     window = tuple(trace.meta.get("score_window", (trace.t0, trace.t0 + trace.duration)))
@@ -314,9 +312,6 @@ def plot_force_estimate(trace: Recording, estimate: Recording, path: str | Path,
     panels[-1, 0].set_xlabel("time [s]")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    from drivesense.plot import _save
+
+    return _save(plt, fig, path)

@@ -14,7 +14,8 @@ from drivesense.cli import (archive, core, feedpower, identify_frf, identify_lin
 
 __all__ = ["app", "identify_app", "main"]
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+# rich_markup_mode=None: help texts name units in brackets ("time [s]"), which Rich markup would swallow
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                   help="drivesense: process force from a machine tool's own drive signals.")
 core.register(app)
 

@@ -146,7 +146,9 @@ def estimate(
         from drivesense.cli.identify_linear import estimate_model
 
         if idle or tare or axis_file:
-            raise ConfigError(f"--method {method} reads a 3-axis NC trace: it takes no --axis/--idle/--tare")
+            needs = "--axes AXES.toml" if method == "model" else "--model MODEL"
+            raise ConfigError(f"--method {method} takes {needs}, not --axis/--idle/--tare "
+                              "(it reads a 3-axis NC trace)")
         if method == "model":
             if axes_file is None:
                 raise ConfigError("--method model needs --axes AXES.toml (write one with 'drivesense identify linear')")

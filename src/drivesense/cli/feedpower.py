@@ -24,7 +24,7 @@ _IN_MIN = 0.0254 / 60
 @feedpower_app.command("fit")
 @friendly
 def fit(
-    cuts: Annotated[Path, typer.Argument(help=escape(_CUTS_HELP))],
+    cuts: Annotated[Path, typer.Argument(help=_CUTS_HELP)],
     model_path: Annotated[Path, typer.Option("--model", help="Where to write the model (JSON).")],
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write fit and cross-validation here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write force vs cutting power per speed (Fig. 14).")] = None,
@@ -63,7 +63,7 @@ def fit(
 @feedpower_app.command("predict")
 @friendly
 def predict(
-    cuts: Annotated[Path, typer.Argument(help=escape(_CUTS_HELP))],
+    cuts: Annotated[Path, typer.Argument(help=_CUTS_HELP)],
     model_path: Annotated[Path, typer.Option("--model", help="MODEL.json from 'feedpower fit'.")],
     out: Annotated[Path, typer.Option("--out", help="Prediction CSV to write.")],
     force_unit: Annotated[str, typer.Option(help="Unit of the force columns written: N, kN or lbf.")] = "N",

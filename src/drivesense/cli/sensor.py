@@ -42,7 +42,7 @@ def _save(rec, path: Path) -> None:
 @friendly
 def simulate(
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for the simulated recordings.")],
-    levels: Annotated[str, typer.Option(help=escape("Shaker levels [g rms], comma separated."))] = \
+    levels: Annotated[str, typer.Option(help="Shaker levels [g rms], comma separated.")] = \
         "1.3,2.6,4.0,5.3,6.6",
     fmt: Annotated[str, typer.Option("--format", help="nc (lossless, compact) or csv.")] = "nc",
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
@@ -66,7 +66,7 @@ def simulate(
         _save(simulate_machining_vibration(seed=seed + 100), out_dir / f"milling.{fmt}")
         progress.advance(task)
     console.print(f"wrote {len(amps)} shaker pairs and milling.{fmt} to {out_dir} "
-                  + escape("(channels electret [V], accel_ref [m/s^2])"))
+                  + "(channels electret [V], accel_ref [m/s^2])")
 
 
 @sensor_app.command("calibrate")
@@ -74,9 +74,9 @@ def simulate(
 def calibrate(
     pairs: Annotated[list[Path], typer.Argument(help="Paired recordings (.nc or .csv), ideally at several levels.")],
     out: Annotated[Path, typer.Option("--out", help="Calibration (deconvolution filter) JSON to write.")],
-    sensor_channel: Annotated[str, typer.Option(help=escape("Channel of the cheap sensor [V]."))] = "electret",
-    reference_channel: Annotated[str, typer.Option(help=escape("Channel of the reference [m/s^2]."))] = "accel_ref",
-    band: Annotated[str, typer.Option(help=escape("Band to restore, LOW:HIGH [Hz]."))] = "100:4000",
+    sensor_channel: Annotated[str, typer.Option(help="Channel of the cheap sensor [V].")] = "electret",
+    reference_channel: Annotated[str, typer.Option(help="Channel of the reference [m/s^2].")] = "accel_ref",
+    band: Annotated[str, typer.Option(help="Band to restore, LOW:HIGH [Hz].")] = "100:4000",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write the ratio spectrum (Fig. 6 style) here.")] = None,
 ) -> None:
@@ -120,7 +120,7 @@ def apply(
     recording: Annotated[Path, typer.Argument(help="Recording (.nc or .csv) holding the cheap sensor's channel.")],
     filter_path: Annotated[Path, typer.Option("--filter", help="Calibration JSON from 'sensor calibrate'.")],
     out: Annotated[Path, typer.Option("--out", help="Output recording (.nc or .csv) with the acceleration.")],
-    sensor_channel: Annotated[str, typer.Option(help=escape("Channel of the cheap sensor [V]."))] = "electret",
+    sensor_channel: Annotated[str, typer.Option(help="Channel of the cheap sensor [V].")] = "electret",
     reference_channel: Annotated[str, typer.Option(help="Reference channel, if present, to score against.")] =
     "accel_ref",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,

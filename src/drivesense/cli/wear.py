@@ -91,10 +91,10 @@ def simulate(
 @wear_app.command("calibrate")
 @friendly
 def calibrate(
-    cuts: Annotated[Path, typer.Argument(help=escape(_TABLE_HELP))],
+    cuts: Annotated[Path, typer.Argument(help=_TABLE_HELP)],
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the fit as JSON here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write the regression figure (Fig. 4 style) here.")] = None,
-    diameter: Annotated[Optional[float], typer.Option(help=escape("Tool diameter [mm] if the table has none."))] = None,
+    diameter: Annotated[Optional[float], typer.Option(help="Tool diameter [mm] if the table has none.")] = None,
     flutes: Annotated[Optional[int], typer.Option(help="Number of flutes if the table has none.")] = None,
     mode: Annotated[str, typer.Option(help="up | down: milling mode of radial_depth rows.")] = "down",
     calibration: Annotated[Optional[int], typer.Option(help="Use only this calibration number of a session.")] = None,
@@ -141,10 +141,10 @@ def calibrate(
 @wear_app.command("track")
 @friendly
 def track(
-    session: Annotated[Path, typer.Argument(help=escape(_TABLE_HELP + " Plus 'calibration' and/or 'distance [m]'."))],
+    session: Annotated[Path, typer.Argument(help=_TABLE_HELP + " Plus 'calibration' and/or 'distance [m]'.")],
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the wear history as JSON here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write the coefficient history (Fig. 11 style) here.")] = None,
-    diameter: Annotated[Optional[float], typer.Option(help=escape("Tool diameter [mm] if the table has none."))] = None,
+    diameter: Annotated[Optional[float], typer.Option(help="Tool diameter [mm] if the table has none.")] = None,
     flutes: Annotated[Optional[int], typer.Option(help="Number of flutes if the table has none.")] = None,
     mode: Annotated[str, typer.Option(help="up | down: milling mode of radial_depth rows.")] = "down",
     reference: Annotated[Optional[int], typer.Option(help="Cut (0-based, in the first calibration) for the "

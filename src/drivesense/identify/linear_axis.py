@@ -24,9 +24,9 @@ argument or from the traces' ``meta["motor_constants_n_per_a"]``.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -488,7 +488,7 @@ def identify_axes(air_moves: Sequence[Recording], **kwargs) -> ThreeAxisModel:
     return run_identification(air_moves, **kwargs).model
 
 
-def plot_identification(report: IdentificationReport, path) -> "Path":
+def plot_identification(report: IdentificationReport, path) -> Path:
     """Figure of the identification: cogging table (top) and Stribeck curve with the segment means (bottom) per axis.
 
     Parameters
@@ -502,13 +502,9 @@ def plot_identification(report: IdentificationReport, path) -> "Path":
     -------
     Path
     """
-    from pathlib import Path
+    from drivesense.plot import _pyplot, _save
 
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, panels = plt.subplots(2, 3, figsize=(12, 6.5))
     for j, ax in enumerate(AXES):
         axis = report.model.axis(ax)
@@ -529,9 +525,4 @@ def plot_identification(report: IdentificationReport, path) -> "Path":
         panels[1, j].set_xlabel("velocity [mm/s]")
         panels[1, j].set_ylabel("F_fr [N]")
         panels[1, j].legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

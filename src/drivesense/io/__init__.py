@@ -61,6 +61,34 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def read_toml(path: str | Path, what: str) -> dict:
+    """Parse a TOML file, naming it (``what``, e.g. ``"axis file"``) in every error.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the file is, for messages.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ConfigError
+        The file is not valid TOML.
+    """
+    import tomllib
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} '{path}' does not exist")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{what} '{path}': not valid TOML ({exc})") from None
+
+
 from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
 from .netcdf import load_netcdf, save_netcdf  # noqa: E402
 

@@ -24,7 +24,6 @@
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 from drivesense.errors import ConfigError
@@ -59,13 +58,10 @@ def read_axes_file(path) -> ThreeAxisModel:
     FileNotFoundError
         The file does not exist.
     """
+    from drivesense.io import read_toml
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"axes file '{path}' does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"axes file '{path}': not valid TOML ({exc})") from None
+    data = read_toml(path, "axes file")
     unknown = [k for k in data if k not in AXES]
     if unknown:
         raise ConfigError(f"axes file '{path}': unknown table(s) or key(s) {', '.join(unknown)} "

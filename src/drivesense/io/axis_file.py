@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import tomllib
 from pathlib import Path
 
 from drivesense.errors import ConfigError
@@ -62,13 +61,10 @@ def read_axis_file(path) -> tuple[BallScrewAxis, SignalParams]:
     FileNotFoundError
         The file does not exist.
     """
+    from drivesense.io import read_toml
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"axis file '{path}' does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"axis file '{path}': not valid TOML ({exc})") from None
+    data = read_toml(path, "axis file")
     unknown = [k for k in data if k not in ("axis", "signal")]
     if unknown:
         raise ConfigError(f"axis file '{path}': unknown table(s) {', '.join(unknown)} (expected [axis], [signal])")

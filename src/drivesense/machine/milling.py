@@ -370,9 +370,8 @@ def material_removal_rate(cut, feed_speed):
     return float(q) if q.ndim == 0 else q
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _forces_kernel(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
-                   phi_st, phi_ex, half_d, k, dz, fx, fy, fz, tq):  # pragma: no cover - numba
+def _forces_loop(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
+                 phi_st, phi_ex, half_d, k, dz, fx, fy, fz, tq):  # pragma: no cover - numba
     """Accumulate the slice forces of every flute into fx, fy, fz, tq (in place)."""
     two_pi = 2.0 * math.pi
     ktc, krc, kac, kte, kre, kae = k[0], k[1], k[2], k[3], k[4], k[5]
@@ -411,6 +410,13 @@ def _forces_kernel(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
         fy[i] = sy
         fz[i] = sz
         tq[i] = st
+
+
+
+# one loop, compiled twice: threads pay off only for long inputs (a short call would wait on thread start-up)
+_forces_serial = njit(cache=True, nogil=True)(_forces_loop)
+_forces_parallel = njit(cache=True, nogil=True, parallel=True)(_forces_loop)
+_PARALLEL_MIN_SAMPLES = 50_000
 
 
 def milling_forces(tool, coefficients, cut, spindle_angle, feed_per_tooth, *,
@@ -488,6 +494,7 @@ def milling_forces(tool, coefficients, cut, spindle_angle, feed_per_tooth, *,
                   coefficients.Kte, coefficients.Kre, coefficients.Kae])
 
     out = [np.empty(n) for _ in range(4)]
-    _forces_kernel(np.ascontiguousarray(angle), c, fp, use_fp, off, np.cos(off), np.sin(off),
+    kernel = _forces_parallel if angle.size >= _PARALLEL_MIN_SAMPLES else _forces_serial
+    kernel(np.ascontiguousarray(angle), c, fp, use_fp, off, np.cos(off), np.sin(off),
                    radius, drad, phi_st, phi_ex, half_d, k, dz, *out)
     return MillingForces(feed=out[0], normal=out[1], axial=out[2], torque=out[3])

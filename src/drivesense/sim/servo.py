@@ -207,7 +207,7 @@ def _interp_hist(hist: np.ndarray, pos: float) -> float:
 def _servo_loop(plant, ctrl, phi, gamma, fric_m, fric_g, cog, lead_err, enc, scl,
                 x_ref, v_ff, a_ff, f_ext, n_load, i_exc, f_fine, seed):
     np.random.seed(seed)
-    M_r, M_t, C_r, C_t, C_k, K_r, R, K_t = plant[0], plant[1], plant[2], plant[3], plant[4], plant[5], plant[6], plant[7]
+    K_r, R, K_t = plant[5], plant[6], plant[7]  # the linear mechanics are in phi/gamma
     droop, i_rated, i_max, pole2 = plant[8], plant[9], plant[10], plant[11]
     fs = ctrl[0]
     nsub = int(ctrl[1])
