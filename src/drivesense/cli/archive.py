@@ -102,12 +102,13 @@ def search(
                             end=dict(_range(s, "--end") for s in end or []), limit=limit)
     if _emit(json_path, {"query": text, "hits": [h.to_dict() for h in hits]}):
         return
-    table = Table(title=f"{len(hits)} experiment(s)")
-    for col in ("id", "created", "name", "machine", "tool", "material", "operator", "meas.", "samples"):
-        table.add_column(col, overflow="fold", justify="right" if col in ("meas.", "samples") else "left")
+    table = Table(title=f"{len(hits)} experiment(s)", caption="ids are shortened: any unique prefix works")
+    fields = [f for f in ("machine", "tool", "material", "operator") if any(getattr(h, f) for h in hits)]
+    for col in ("id", "created", "name", *fields, "samples"):
+        table.add_column(col, overflow="fold", no_wrap=col in ("id", "created", "samples"),
+                         justify="right" if col == "samples" else "left")
     for h in hits:
-        table.add_row(h.id[:12], h.created[:19], h.name, h.machine, h.tool[:40], h.material, h.operator,
-                      str(h.measurements), str(h.samples))
+        table.add_row(h.id[:8], h.created[:10], h.name, *(getattr(h, f)[:30] for f in fields), f"{h.samples:,}")
     console.print(table)
 
 

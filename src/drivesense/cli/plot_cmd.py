@@ -136,9 +136,10 @@ def plot_trace_spectrum(rec, channel: str, path, *, wavelength: bool = False, fe
         ax_f.semilogy(f[sel], amp[sel], lw=0.8, color="tab:red")
         ax_f.set_xlabel("frequency [Hz]")
         x_peak, keep = f[sel], sel
-    for peak in dominant_wavelengths(x_peak, amp[keep], n=3, min_separation=0.05):
-        ax_f.annotate(f"{peak['wavelength_m']:.4g}", (peak["wavelength_m"], peak["amplitude"]),
-                      textcoords="offset points", xytext=(4, 4), fontsize=8)
+    for rank, peak in enumerate(dominant_wavelengths(x_peak, amp[keep], n=3, min_separation=0.05)):
+        ax_f.annotate(f"{peak['wavelength_m']:.4g} {'mm' if wavelength else 'Hz'}",
+                      (peak["wavelength_m"], peak["amplitude"]), textcoords="offset points",
+                      xytext=(6, 2 - 11 * rank), fontsize=8, arrowprops={"arrowstyle": "-", "lw": 0.5})
     ax_f.set_ylabel(f"amplitude [{unit}]")
     ax_f.grid(alpha=0.3, which="both")
     fig.suptitle(title or f"{rec.name or ''} {channel}: {rec.n_samples} samples @ {rec.fs:g} Hz "
