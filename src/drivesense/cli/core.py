@@ -266,14 +266,14 @@ def friction(
 @app.command()
 @friendly
 def bench(
-    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | all")] = "all",
+    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
     from drivesense.bench import run_bench
 
     with progress_bar() as progress:
-        total = {"accuracy": 10, "speed": 1, "identify": 4, "all": 15}.get(kind, 1)
+        total = {"accuracy": 10, "speed": 1, "identify": 5, "learn": 4, "wear": 1, "io": 1, "all": 22}.get(kind, 1)
         task = progress.add_task(f"bench {kind}", total=total)
         result = run_bench(kind, progress=lambda label: progress.advance(task))
     if "accuracy" in result:
@@ -299,7 +299,27 @@ def bench(
         console.print(table)
         console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
                       f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions")
+    for part in ("wear", "io", "learn"):
+        if part in result and isinstance(result[part], dict):
+            _print_targets(part, result[part])
     write_json(json_path, result)
+
+
+def _print_targets(part: str, section: dict) -> None:
+    """A short table of a bench section: its targets (met or not) or its scalar figures."""
+    table = Table(title=f"bench {part}", show_header=False, box=box.SIMPLE)
+    targets = section.get("targets")
+    if isinstance(targets, dict) and all(isinstance(v, dict) for v in targets.values()):
+        for name, t in targets.items():
+            table.add_row(name, f"{t.get('value', '')!s:.8}", str(t.get("target", "")),
+                          "met" if t.get("met") else "NOT met")
+    else:
+        for name, value in section.items():
+            if isinstance(value, (int, float)):
+                table.add_row(name, f"{value:.4g}")
+            elif isinstance(value, dict) and all(isinstance(v, (int, float)) for v in value.values()):
+                table.add_row(name, ", ".join(f"{k} {v:.4g}" for k, v in value.items()))
+    console.print(table)
 
 
 # ---------------------------------------------------------------------- axis
