@@ -277,4 +277,21 @@ def run_io_bench(progress=None) -> dict:
             step("postgres")
         else:
             out["archive_postgres"] = {"skipped": "set DRIVESENSE_BENCH_PG_DSN to a PostgreSQL DSN"}
+    out["targets"] = _targets(out)
     return {"io": out}
+
+
+def _targets(out: dict) -> dict:
+    """The issue's targets with the measured values: ``{name: {"value", "target", "met"}}``."""
+    xml, mem, sq = out["xml"], out["import_memory"], out["archive_sqlite"]
+    lost = [out[k] for k in ("nothing_lost_sqlite", "nothing_lost_postgres") if k in out]
+    bad = sum(r["lost"] + r["half_written"] + r["partial_after_kill"] for r in lost)
+    ratio = mem.get("peak_over_samples", float("nan"))
+    return {"xml_read_mb_s": {"value": round(xml["xml_read_mb_s"], 1), "target": ">= 200", "met": xml["xml_read_mb_s"] >= 200},
+            "xml_write_mb_s": {"value": round(xml["xml_write_mb_s"], 1), "target": ">= 200",
+                               "met": xml["xml_write_mb_s"] >= 200},
+            "sqlite_query_median_ms": {"value": round(sq["query_median_ms"], 2), "target": "<= 10",
+                                       "met": sq["query_median_ms"] <= 10},
+            "sqlite_insert_per_s": {"value": round(sq["insert_per_s"]), "target": ">= 100", "met": sq["insert_per_s"] >= 100},
+            "lost_or_half_written": {"value": bad, "target": "0", "met": bad == 0},
+            "import_peak_over_samples": {"value": round(ratio, 3), "target": "< 2", "met": bool(ratio < 2)}}
