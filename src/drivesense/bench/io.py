@@ -125,6 +125,8 @@ def _archive_speed(location: str, kw: dict, count: int, queries: int, progress) 
             if progress and k % 2500 == 2499:
                 progress(f"archive {k + 1}")
         insert = count / (time.perf_counter() - t)
+        if not hasattr(store, "path"):  # PostgreSQL: fresh planner statistics, as autovacuum keeps them
+            store._conn.execute("ANALYZE")
         qrng = np.random.default_rng(3)
         cases = []
         for _ in range(queries):
