@@ -134,7 +134,7 @@ def _tanh(x):
     return x * (135135.0 + x2 * (17325.0 + x2 * (378.0 + x2))) / (135135.0 + x2 * (62370.0 + x2 * (3150.0 + x2 * 28.0)))
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def _lstm(w_ih, w_hh, bias, in_dims, head_w, head_b, h, c, x, out, p, seed):
     layers, g4, _ = w_ih.shape
     hid = g4 // 4
