@@ -72,7 +72,7 @@ def accuracy_table(rows: list[dict], title: str) -> Table:
 
 
 def read_trace(path: Path, axis_name: str = "x"):
-    """Read a CSV (bare channel names get the axis prefix) or a saved recording."""
+    """Read a CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment."""
     from drivesense.io import read_recording
 
     return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)

@@ -273,8 +273,8 @@ def bench(
     from drivesense.bench import run_bench
 
     with progress_bar() as progress:
-        total = {"accuracy": 10, "speed": 1, "identify": 5, "learn": 4, "wear": 1, "io": 1, "all": 22}.get(kind, 1)
-        task = progress.add_task(f"bench {kind}", total=total)
+        # steps per part vary (e.g. io runs more with a PostgreSQL server): count them, no fixed total
+        task = progress.add_task(f"bench {kind}", total=None)
         result = run_bench(kind, progress=lambda label: progress.advance(task))
     if "accuracy" in result:
         console.print(accuracy_table(result["accuracy"], "Accuracy (full physics)"))

@@ -99,7 +99,8 @@ def read_recording(path: str | Path, **kw: Any):
     Parameters
     ----------
     path : str or Path
-        ``.csv`` (:func:`read_csv`) or ``.nc`` (:func:`load_netcdf`).
+        ``.csv`` (:func:`read_csv`), ``.nc`` (:func:`load_netcdf`) or ``.xml``
+        (the XML experiment format; its first measurement).
     **kw
         Passed to :func:`read_csv` (``axis``, ``mapping``, ``fs``, ...);
         netCDF files take none.
@@ -121,5 +122,11 @@ def read_recording(path: str | Path, **kw: Any):
         if kw:
             raise ConfigError(f"{path}: netCDF files take no reader options, got {sorted(kw)}")
         return load_netcdf(path)
+    if suffix == ".xml":
+        if kw:
+            raise ConfigError(f"{path}: XML experiment files take no reader options, got {sorted(kw)}")
+        from .xml_format import read_xml
+
+        return read_xml(path)
     raise ConfigError(f"{path}: unknown file type {suffix or '(no suffix)'!r} "
-                      "(known: .csv, .nc)")
+                      "(known: .csv, .nc, .xml)")
