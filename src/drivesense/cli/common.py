@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -37,15 +36,12 @@ def friendly(fn):
 
 
 def write_json(path: Optional[Path], payload: dict) -> None:
+    """Write a command's JSON result (nothing without ``--json``) and say so."""
     if path is None:
         return
-    from drivesense.io import atomic_output
+    from drivesense.io import write_json_file
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, default=float) + "\n", encoding="utf-8")
-    console.print(f"wrote {path}")
+    console.print(f"wrote {write_json_file(path, payload)}")
 
 
 def progress_bar() -> Progress:

@@ -391,12 +391,9 @@ class FeedPowerModel:
         -------
         Path
         """
-        from drivesense.io import atomic_output
+        from drivesense.io import write_json_file
 
-        path = Path(path)
-        with atomic_output(path) as tmp:
-            tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
-        return path
+        return write_json_file(path, self.to_dict())
 
     @classmethod
     def load(cls, path) -> "FeedPowerModel":

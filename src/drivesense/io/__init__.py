@@ -23,6 +23,7 @@ __all__ = [
     "load_netcdf",
     "read_recording",
     "atomic_output",
+    "write_json_file",
 ]
 
 
@@ -59,6 +60,27 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Path:
+    """Write ``payload`` as JSON, atomically (numpy scalars written as floats).
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file (its folder is created).
+    payload : object
+        JSON-serialisable data.
+    indent : int, optional
+        Indentation (None: compact).
+    """
+    import json
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=indent, default=float) + "\n", encoding="utf-8")
+    return path
 
 
 def read_toml(path: str | Path, what: str) -> dict:
