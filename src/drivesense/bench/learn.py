@@ -98,7 +98,8 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
     config : TrainConfig, optional
         Training settings.
     figures_dir : str or Path, optional
-        Where to write the pocket and worst-outlier figures.
+        Where to write the pocket and worst-outlier figures (default: a
+        ``figures`` folder beside the dataset cache).
 
     Returns
     -------
@@ -156,9 +157,8 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
         if r["split"] == "test" and r["axis"] in "xy":
             by_run.setdefault(r["run"], {}).setdefault(r["method"], []).append(r["rmse_n"])
     wins = [np.mean(v["hybrid"]) < min(np.mean(v["lstm"]), np.mean(v["model"])) for v in by_run.values()]
-    figures = []
-    if figures_dir:
-        figures = _figures(Path(figures_dir), held, rows, {"model": ModelBased(axes), "lstm": lstm, "hybrid": hybrid})
+    figures = _figures(Path(figures_dir or data_dir.parent / "figures"), held, rows,
+                       {"model": ModelBased(axes), "lstm": lstm, "hybrid": hybrid})
     result = {
         "median_rmse": med, "mean_rmse": mean, "pocket_rmse": pocket, "held_out_process": HELD_OUT_PROCESS,
         "held_out_process_median_rmse": held_proc, "hybrid_best_fraction": float(np.mean(wins)) if wins else None,
