@@ -19,7 +19,6 @@ jumps where a slide cover extends). ``per_speed_fits`` gives each speed's own li
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -408,14 +407,9 @@ class FeedPowerModel:
         -------
         FeedPowerModel
         """
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"model file {path} not found")
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except ValueError as exc:
-            raise ConfigError(f"{path.name}: not JSON ({exc})") from None
-        return cls.from_dict(data)
+        from drivesense.io import read_json_file
+
+        return cls.from_dict(read_json_file(path, "model file"))
 
 
 def fit_feed_power(cuts: FeedCuts) -> FeedPowerModel:

@@ -18,7 +18,6 @@ amplitudes:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -294,13 +293,9 @@ class SensorCalibration:
         -------
         SensorCalibration
         """
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"calibration file {path} not found")
-        try:
-            return cls.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except ValueError as exc:
-            raise ConfigError(f"{path.name}: not JSON ({exc})") from None
+        from drivesense.io import read_json_file
+
+        return cls.from_dict(read_json_file(path, "calibration file"))
 
 
 def calibrate_sensor(pairs, *, fs: float | None = None, band=(100.0, 4000.0), nperseg: int = 4096,

@@ -24,6 +24,7 @@ __all__ = [
     "read_recording",
     "atomic_output",
     "write_json_file",
+    "read_json_file",
 ]
 
 
@@ -81,6 +82,34 @@ def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Pat
     with atomic_output(path) as tmp:
         tmp.write_text(json.dumps(payload, indent=indent, default=float) + "\n", encoding="utf-8")
     return path
+
+
+def read_json_file(path: str | Path, what: str):
+    """Parse a JSON file, naming it (``what``, e.g. ``"model file"``) in every error.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the file is, for messages.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ConfigError
+        The file is not valid JSON.
+    """
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {path} not found")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path.name}: not JSON ({exc})") from None
 
 
 def read_toml(path: str | Path, what: str) -> dict:
