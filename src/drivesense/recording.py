@@ -32,6 +32,7 @@ from .errors import (
     TimebaseError,
     UnitError,
 )
+from .metadata import meta_to_json as _meta_to_json
 from .timebase import check_fs, check_timebase, format_time, validate_timebase
 
 __all__ = ["Recording", "validate_timebase", "META_ATTR"]
@@ -41,41 +42,6 @@ META_ATTR = "drivesense_meta"
 
 
 # ----------------------------------------------------------------- helpers
-def _jsonable(obj: Any, path: str) -> Any:
-    """Return `obj` as plain JSON types (numpy scalars/arrays converted)."""
-    if obj is None or isinstance(obj, (bool, str)):
-        return obj
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        if not math.isfinite(obj):
-            raise ConfigError(f"{path} = {float(obj)!r}: JSON has no NaN/inf "
-                              "(use None for unknown)")
-        return float(obj)
-    if isinstance(obj, Mapping):
-        out = {}
-        for key, value in obj.items():
-            if not isinstance(key, str):
-                raise ConfigError(f"{path} has key {key!r} of type {type(key).__name__}; "
-                                  "metadata keys must be strings")
-            out[key] = _jsonable(value, f"{path}[{key!r}]")
-        return out
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [_jsonable(v, f"{path}[{i}]") for i, v in enumerate(obj)]
-    raise ConfigError(f"{path} is a {type(obj).__name__} ({obj!r:.60}), not JSON-serialisable; "
-                      "metadata holds str, numbers, bool, None, lists and dicts")
-
-
-def _meta_to_json(meta: Mapping | None) -> str:
-    if meta is None:
-        return "{}"
-    if not isinstance(meta, Mapping):
-        raise ConfigError(f"meta must be a mapping (dict), got {type(meta).__name__}")
-    return json.dumps(_jsonable(meta, "meta"), ensure_ascii=False, allow_nan=False)
-
-
 def _check_channel_name(name: Any) -> str:
     if not isinstance(name, str) or not name.strip():
         raise ConfigError(f"channel names must be non-empty strings, got {name!r}")
