@@ -84,6 +84,17 @@ def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Pat
     return path
 
 
+def _parse_text_file(path: str | Path, what: str, parse, errors: tuple, problem: str):
+    """Read a UTF-8 text file and parse it; the messages name the file (``what``) and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} '{path}' does not exist")
+    try:
+        return parse(path.read_text(encoding="utf-8"))
+    except (*errors, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{what} '{path}': {problem} ({exc})") from None
+
+
 def read_json_file(path: str | Path, what: str):
     """Parse a JSON file, naming it (``what``, e.g. ``"model file"``) in every error.
 
@@ -103,14 +114,7 @@ def read_json_file(path: str | Path, what: str):
     """
     import json
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} {path} not found")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path.name}: not JSON ({exc})") from None
-
+    return _parse_text_file(path, what, json.loads, (ValueError,), "not JSON")
 
 def read_toml(path: str | Path, what: str) -> dict:
     """Parse a TOML file, naming it (``what``, e.g. ``"axis file"``) in every error.
@@ -131,14 +135,7 @@ def read_toml(path: str | Path, what: str) -> dict:
     """
     import tomllib
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} '{path}' does not exist")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{what} '{path}': not valid TOML ({exc})") from None
-
+    return _parse_text_file(path, what, tomllib.loads, (tomllib.TOMLDecodeError,), "not valid TOML")
 
 from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
 from .netcdf import load_netcdf, save_netcdf  # noqa: E402
