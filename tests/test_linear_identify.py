@@ -183,6 +183,9 @@ def test_identification_on_simulated_air_moves_meets_the_targets(air):
     assert max(rep.seconds.values()) < 10.0
     nominal = identification_table(rep.model, TRUE)                     # the preset (2 % run variation apart)
     assert all(v["rel_error"] < 0.06 for t in nominal.values() for v in t.values())
+    for ax in "xyz":       # step 5: a presliding distance of the simulator's order (LuGre F_C/sigma0 = 15 um)
+        assert rep.steps[ax]["presliding"]["determined"] and 3e-6 < rep.model.axis(ax).x_pre < 30e-6
+    assert run_identification(air, presliding=False).model.x.x_pre == 0.0
     est = ModelBased(TRUE).fit(air)                      # the estimator's fit() is the same method
     assert est.model.x.k == pytest.approx(rep.model.x.k) and est.report is not None
 
@@ -199,7 +202,7 @@ def test_cli_identify_linear(air, tmp_path):
     model = read_axes_file(tmp_path / "AXES.toml")
     assert model.y.k == pytest.approx(TRUE.y.k, rel=0.05)
     info = json.loads((tmp_path / "id.json").read_text())
-    assert set(info["steps"]["x"]) == {"restoring", "cogging", "friction", "mass"}
+    assert set(info["steps"]["x"]) == {"restoring", "cogging", "friction", "mass", "presliding"}
     assert (tmp_path / "id.png").stat().st_size > 10_000
     # one trace of one axis cannot determine the machine: one line, exit 2
     res = runner.invoke(app, ["identify", "linear", str(paths[0]), "--out", str(tmp_path / "A2.toml")])

@@ -5,7 +5,8 @@ simulator physics (LuGre friction with stiction and presliding, ripple,
 drift and load dependence, cogging harmonics varying along the travel,
 motor-constant droop, current-loop lag, yaw coupling, noise, quantisation,
 run-to-run variation, a causal linear-phase anti-alias FIR in the NC trace logger);
-ModelBased uses the *identified* model.  Scores: RMSE [N], NRMSE (RMSE /
+ModelBased uses the *identified* model, presliding distance included; each
+row also scores the same model with the paper's friction sign (``paper_*``).  Scores: RMSE [N], NRMSE (RMSE /
 peak-to-peak of the reference over the scoring window) and max |F| of the
 reference, per process and axis; the reference is the true force on the
 workpiece, zero-phase low-passed at 120 Hz, delayed by the trace's declared
@@ -191,7 +192,9 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
     dict
         ``linear_axis``: rows ``{process, axis, moving, rmse_n, nrmse,
         max_abs_force_n, peak_to_peak_n, reversals, rmse_reversal_n,
-        rmse_elsewhere_n, a_e_mm, a_p_mm, v_f_mm_min, n_rpm}``;
+        rmse_elsewhere_n, paper_rmse_n, paper_nrmse, a_e_mm, a_p_mm,
+        v_f_mm_min, n_rpm}`` (``paper_*``: the same model with the paper's
+        friction sign instead of the presliding state);
         ``linear_identify``: :func:`identification_table` against the
         session's true values (:func:`session_truth`) and against the preset's
         nominal ones, plus the per-step report; ``linear_identify_seconds``: wall time per axis;
@@ -206,15 +209,18 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
         progress("identify")
     table = identification_table(report.model, session_truth(air, settings.physics.model()))
     est = ModelBased(report.model)
+    paper = ModelBased(report.model, presliding=False)     # the paper's friction sign, for comparison
     rows, pocket = [], None
     for k, (proc, ae, ap, vf, n) in enumerate(cases):
         trace = simulate_process(proc, ap * 1e-3, ae * 1e-3, vf / 60e3, float(n), seed=seed * 1000 + k,
                                  settings=settings)
-        forces = est.estimate(trace)
+        forces, forces_paper = est.estimate(trace), paper.estimate(trace)
         moving = trace.meta["moving_axes"]
         for ax in ("x", "y") + (("z",) if "z" in moving else ()):
+            base = score_process(forces_paper, trace, ax)
             rows.append({"process": proc, "axis": ax, "moving": ax in moving, **score_process(forces, trace, ax),
                          **reversal_scores(forces, trace, ax),
+                         "paper_rmse_n": base["rmse_n"], "paper_nrmse": base["nrmse"],
                          "a_e_mm": ae, "a_p_mm": ap, "v_f_mm_min": vf, "n_rpm": n})
         if proc == "pocket_ccw":
             pocket = (trace, forces)
@@ -224,12 +230,18 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
     if figure is not None and pocket is not None:
         figures.append(str(plot_pocket_estimate(pocket[0], pocket[1], figure)))
     const = [r for r in rows if r["moving"] and r["process"].split("_")[0] in ("groove", "side")]
+    const_all = [r for r in rows if r["process"].split("_")[0] in ("groove", "side")]
+    standing = [r for r in rows if not r["moving"]]
+    truth = session_truth(air, settings.physics.model())
     ident_ok = all(v["ok"] for ax in table.values() for v in ax.values())
     return {
         "linear_axis": rows,
         "linear_identify": {"table": table, "all_within_targets": ident_ok,
                             "table_vs_nominal": identification_table(report.model, settings.physics.model()),
                             "report": report.steps,
+                            "presliding": {ax: {"identified_m": report.model.axis(ax).x_pre,
+                                                "lugre_scale_m": _lugre_scale(settings, truth, ax)}
+                                           for ax in AXES},
                             "physics": "full simulator physics, air moves of one session; 'table' compares with "
                                        "the session's true values (nominal with its run-to-run variation)"},
         "linear_identify_seconds": {"total": t_ident, **report.seconds},
@@ -240,11 +252,23 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
             "median_rmse_n": float(np.median([r["rmse_n"] for r in rows])),
             "reversal_rmse_n": {f"{r['process']}/{r['axis']}": [r["rmse_reversal_n"], r["rmse_elsewhere_n"]]
                                 for r in rows if r["reversals"]},
-            "standing_axis_median_nrmse": float(np.median([r["nrmse"] for r in rows if not r["moving"]]))
-            if any(not r["moving"] for r in rows) else None,
+            "constant_feed_worst_nrmse_standing_included": max(r["nrmse"] for r in const_all) if const_all else None,
+            "standing_axis_median_nrmse": float(np.median([r["nrmse"] for r in standing])) if standing else None,
+            "standing_axis_median_nrmse_paper_friction": float(np.median([r["paper_nrmse"] for r in standing]))
+            if standing else None,
+            "median_rmse_n_paper_friction": float(np.median([r["paper_rmse_n"] for r in rows])),
             "figures": figures,
         },
     }
+
+
+def _lugre_scale(settings: ProcessSettings, truth: ThreeAxisModel, ax: str) -> list[float] | None:
+    """The simulator's presliding length ``[F_C / sigma0, F_br / sigma0]`` [m] of axis ``ax`` (None without LuGre)."""
+    fr = settings.physics.axis(ax).friction
+    if fr is None or fr.sigma0 <= 0:
+        return None
+    a = truth.axis(ax)
+    return [a.F_C / fr.sigma0, a.F_br / fr.sigma0]
 
 
 def plot_pocket_estimate(trace: Recording, estimate: Recording, path: str | Path) -> Path:

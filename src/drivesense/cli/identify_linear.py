@@ -44,14 +44,16 @@ def identify_linear(
     km: Annotated[Optional[str], typer.Option("--km", help="Motor constants x=..,y=..,z=.. [N/A] (default: the traces' metadata).")] = None,
     pole_pitch: Annotated[float, typer.Option(help="Pole pitch of the motors [m].")] = 0.023,
     table_size: Annotated[int, typer.Option(help="Points of the cogging table over one pole pitch.")] = 64,
+    presliding: Annotated[bool, typer.Option("--presliding/--no-presliding",
+                                             help="Step 5: identify the presliding distance (beyond the paper).")] = True,
 ) -> None:
-    """Identify restoring force, cogging, Stribeck friction and masses of X/Y/Z and write AXES.toml."""
+    """Identify restoring force, cogging, Stribeck friction, masses and presliding of X/Y/Z and write AXES.toml."""
     from drivesense.identify.linear_axis import run_identification
     from drivesense.io.axes_file import write_axes_file
 
     recs = [read_trace(p) for p in air_moves]
     report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,
-                                pole_pitch=pole_pitch, table_size=table_size)
+                                pole_pitch=pole_pitch, table_size=table_size, presliding=presliding)
     model = report.model
     write_axes_file(out, model, header=f"identified by the four-step method from {len(recs)} air move(s)")
     stacked = model.stacked_masses()
@@ -69,6 +71,8 @@ def identify_linear(
             ("v_s [mm/s]", lambda ax, st, a: f"{ax.v_s * 1e3:.3g}"),
             ("sigma [N s/m]", lambda ax, st, a: f"{ax.sigma:.4g}"),
             ("cogging 1st harmonic [N]", lambda ax, st, a: f"{st['cogging']['amplitudes_n'][0]:.2f}"),
+            ("presliding x_pre [um] (step 5)", lambda ax, st, a: f"{ax.x_pre * 1e6:.1f}" if ax.x_pre > 0
+             else "not determined"),
             ("rms step 1 / 3 / 4 [N]", lambda ax, st, a: f"{st['restoring']['rms_n']:.2f} / "
                                                          f"{st['friction']['rms_n']:.2f} / {st['mass']['rms_n']:.2f}")]
     for label, fmt in rows:

@@ -148,6 +148,7 @@ class LearnedStream:
         self.model = model
         self.latency_s = float(latency_s)
         self.states = {ch: LSTMState(w) for ch, w in model.weights.items()}
+        self.base_state: dict = {}     # the hybrid's ModelBased presliding state
 
     def push(self, chunk: Recording | Mapping[str, np.ndarray]):
         """Process the next samples; returns a dict of force arrays [N] (a Recording for a Recording)."""
@@ -166,7 +167,7 @@ class LearnedStream:
         if self.model.kind == "hybrid":
             from drivesense.estimate.model_based import ModelBased
 
-            bases = ModelBased(self.model.model_based).forces(arrays)
+            bases = ModelBased(self.model.model_based).forces(arrays, self.base_state)
         out = {}
         for ch in TARGET_CHANNELS:
             x = self.model.network_input(x_all, bases[ch], ch)

@@ -9,17 +9,28 @@
 
 For each axis ``F = K_m I - k (s - s_r) - M a - F_co(s) - F_fr(v)`` with the
 stacked masses of Eq. 2, sample by sample from the NC trace's current,
-position, velocity and acceleration.  The method is memoryless: it adds no
-delay and carries no state, so streaming equals batch to the bit.  Its
-declared latency is the delay the trace itself declares (``meta["nc_delay_s"]``,
-e.g. a logger's anti-alias filter), 0 when it declares none.
+position, velocity and acceleration.  It adds no delay; its declared latency
+is the delay the trace itself declares (``meta["nc_delay_s"]``, e.g. a
+logger's anti-alias filter), 0 when it declares none.
 
-The sign function of Eq. 4 is replaced by a linear ramp over ``|v| < v_eps``
-(default 0.2 mm/s): at standstill the NC velocity is noise around zero, and
-``sgn`` would flip the friction by twice the breakaway force from sample to
-sample.  A standing axis is therefore credited with no friction -- its static
-friction holds an unknown part of the process force, which the model cannot
-know (the paper's errors on the standing axis).
+Friction direction.  ``sgn(v)`` of Eq. 4 cannot be used as it stands: at
+standstill the NC velocity is noise around zero and the sign would flip the
+friction by twice the breakaway force from sample to sample.
+
+* Axes whose model has a presliding distance ``x_pre > 0`` (identified from
+  the air moves, step 5 of :mod:`drivesense.identify.linear_axis`) use the
+  Dahl state of :func:`~drivesense.machine.linear_motor.presliding_direction`
+  instead: it follows the measured position, so a standing axis whose guides
+  hold the process force by presliding is credited with the spring force of
+  its micro-motion, and a reversal turns the friction over ``x_pre`` of travel.
+  The state is the only memory of the method; the stream carries it, so
+  streaming equals batch to the bit.  It starts at 0 (no friction held),
+  which is right for an axis that has not moved since power-on and otherwise
+  settles after ``x_pre`` of travel.
+* Axes with ``x_pre = 0`` (or ``presliding=False``) use the paper's sign,
+  as a linear ramp over ``|v| < v_eps`` (default 0.2 mm/s).  A standing axis
+  is then credited with no friction at all and the ramp acts as a huge
+  damper on its micro-motion: the paper's errors on the standing axis.
 """
 
 from __future__ import annotations
@@ -29,7 +40,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
-from drivesense.machine.linear_motor import AXES, ThreeAxisModel
+from drivesense.machine.linear_motor import AXES, ThreeAxisModel, presliding_direction
 from drivesense.recording import Recording
 
 __all__ = ["ModelBased", "ModelBasedStream", "MODEL_INPUTS"]
@@ -49,14 +60,18 @@ class ModelBased:
     axes : sequence of str
         Axes to estimate (default x, y, z); each needs its four input channels.
     v_eps : float
-        Half-width of the ramp replacing ``sgn(v)`` in the friction [m/s].
+        Half-width of the ramp replacing ``sgn(v)`` in the friction [m/s]
+        (axes without presliding).
+    presliding : bool
+        Use the Dahl presliding state on axes whose model has ``x_pre > 0``
+        (default); False: the paper's ramped sign on every axis.
     """
 
     #: Short name used by the CLI and the benchmarks.
     name = "model"
 
     def __init__(self, model: ThreeAxisModel | None = None, *, axes: Sequence[str] = AXES,
-                 v_eps: float = 2.0e-4) -> None:
+                 v_eps: float = 2.0e-4, presliding: bool = True) -> None:
         if model is not None and not isinstance(model, ThreeAxisModel):
             raise ConfigError(f"ModelBased needs a ThreeAxisModel, got {type(model).__name__}")
         axes = tuple(axes)
@@ -68,6 +83,7 @@ class ModelBased:
         self.model = model
         self.axes = axes
         self.v_eps = float(v_eps)
+        self.presliding = bool(presliding)
         self.report = None
 
     @property
@@ -110,19 +126,33 @@ class ModelBased:
             raise NotFittedError("ModelBased has no model: give a ThreeAxisModel (AXES.toml) or call fit(air_moves)")
         return self.model
 
-    def forces(self, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def uses_presliding(self, axis: str) -> bool:
+        """True when ``axis`` is estimated with the presliding state (``x_pre > 0`` and ``presliding``)."""
+        return self.presliding and self._require_model().axis(axis).x_pre > 0
+
+    def forces(self, arrays: Mapping[str, np.ndarray], state: dict | None = None) -> dict[str, np.ndarray]:
         """Eq. 2 on arrays: ``{force_ax: F}`` [N] from ``{ax}_current`` [A], ``_position`` [m], ... (SI).
 
         Parameters
         ----------
         arrays : mapping of str to ndarray
             The input channels (see :attr:`channel_names`), equally long.
+        state : dict, optional
+            Presliding state carried between calls (streaming): ``{ax:
+            (last position [m], direction [-])}``, updated in place; None: a
+            fresh start.
         """
         model = self._require_model()
         out = {}
         for a in self.axes:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)
-            out[f"force_{a}"] = model.process_force(a, i, s, v, acc, v_eps=self.v_eps)
+            direction = None
+            if self.uses_presliding(a) and len(s):
+                prev, d0 = state.get(a, (None, 0.0)) if state is not None else (None, 0.0)
+                direction = presliding_direction(s, model.axis(a).x_pre, previous_position=prev, direction=d0)
+                if state is not None:
+                    state[a] = (float(s[-1]), float(direction[-1]))
+            out[f"force_{a}"] = model.process_force(a, i, s, v, acc, v_eps=self.v_eps, direction=direction)
         return out
 
     def latency(self, recording: Recording | None = None) -> float:
@@ -140,11 +170,16 @@ class ModelBased:
             raise ConfigError(f"recording meta 'nc_delay_s' must be a delay >= 0 [s], got {delay!r}")
         return float(delay)
 
+    def _friction_label(self) -> str:
+        pre = [a for a in self.axes if self.uses_presliding(a)]
+        return f"presliding (Dahl) on {''.join(pre)}" if pre else f"sgn(v) ramped over {self.v_eps * 1e3:g} mm/s"
+
     def _wrap(self, recording: Recording, forces: dict[str, np.ndarray], latency: float) -> Recording:
         name = recording.meta.get("name", "trace")
         meta = {"name": f"{name}:{self.name}", "method": self.name, "latency_s": latency, "source": name,
                 "provenance": list(recording.meta.get("provenance", []))
-                + [f"estimate {self.name}: Eq. 2 with stacked masses, memoryless; latency "
+                + [f"estimate {self.name}: Eq. 2 with stacked masses, friction direction "
+                   f"{self._friction_label()}; latency "
                    f"{latency * 1e3:.3f} ms (the trace's declared delay)"]}
         return Recording._from_trusted(forces, {k: "N" for k in forces}, fs=recording.fs, t0=recording.t0,
                                        meta=meta)
@@ -194,7 +229,7 @@ class ModelBased:
 
 
 class ModelBasedStream:
-    """Chunk-by-chunk :class:`ModelBased` estimation (memoryless: no carried state).
+    """Chunk-by-chunk :class:`ModelBased` estimation (carries the presliding state, if any).
 
     Parameters
     ----------
@@ -211,6 +246,8 @@ class ModelBasedStream:
         self.fs = float(fs)
         self.latency_s = float(latency_s)
         self.samples_seen = 0
+        #: Presliding state per axis, ``(last position [m], direction [-])``.
+        self.state: dict = {}
 
     def push(self, chunk: Recording | Mapping[str, np.ndarray]):
         """Process the next samples.
@@ -229,7 +266,7 @@ class ModelBasedStream:
         est = self.estimator
         if isinstance(chunk, Recording):
             chunk.require(*est.channel_names)
-            forces = est.forces({c: chunk[c] for c in est.channel_names})
+            forces = est.forces({c: chunk[c] for c in est.channel_names}, self.state)
             self.samples_seen += chunk.n_samples
             return est._wrap(chunk, forces, self.latency_s)
         if not isinstance(chunk, Mapping):
@@ -249,4 +286,4 @@ class ModelBasedStream:
                 raise InvalidSignalError(f"stream chunk channel {c!r} holds NaN or inf")
             arrays[c], n = arr, arr.size
         self.samples_seen += n or 0
-        return est.forces(arrays)
+        return est.forces(arrays, self.state)

@@ -16,6 +16,13 @@ Per axis, from NC traces of moves without cutting:
 4. **Masses** -- on accelerated samples (away from standstill), what is left
    after friction (Eq. 7) is fitted jointly for ``m_x, m_y, m_z`` with the
    stacked masses of Eq. 8-10.
+5. **Presliding distance** (beyond the paper) -- with steps 1-4 fixed, the
+   distance ``x_pre`` of the Dahl friction state
+   (:func:`~drivesense.machine.linear_motor.presliding_direction`) is the
+   bounded scalar minimiser of the Eq. 2 residual over every sample of the
+   air moves: the starts and reversals of the slow moves determine it, and
+   the standing axis's micro-motion while the others move.  When the moves do
+   not determine it (a flat residual), ``x_pre`` stays 0 and the report says so.
 
 The motor constants are catalogue values (air moves cannot separate ``K_m``
 from the rest: every term scales with it); they are taken from the
@@ -33,11 +40,11 @@ import numpy as np
 from scipy import optimize
 
 from drivesense.errors import ConfigError, CoverageError
-from drivesense.machine.linear_motor import AXES, LinearMotorAxis, ThreeAxisModel
+from drivesense.machine.linear_motor import AXES, LinearMotorAxis, ThreeAxisModel, presliding_direction
 from drivesense.recording import Recording
 
 __all__ = ["IdentificationReport", "identify_axes", "run_identification", "constant_velocity_segments",
-           "direction_averaged", "fit_restoring", "fit_cogging_table", "fit_stribeck", "fit_masses",
+           "direction_averaged", "fit_restoring", "fit_cogging_table", "fit_stribeck", "fit_masses", "fit_presliding",
            "STACKING", "plot_identification"]
 
 #: Which own masses each motor moves (Eq. 2 / 8-10): rows x, y, z; columns m_x, m_y, m_z.
@@ -292,6 +299,58 @@ def fit_masses(accelerations: dict, forces: dict) -> dict:
     return out
 
 
+def fit_presliding(positions, forces, levels, *, bounds: tuple[float, float] = (0.5e-6, 1.0e-3),
+                   min_gain: float = 0.01) -> dict:
+    """Presliding distance of the Dahl friction state by bounded least squares (step 5).
+
+    Minimises ``sum (f - d(s; x_pre) g)^2`` over ``log x_pre``, where ``d`` is
+    :func:`~drivesense.machine.linear_motor.presliding_direction` of each
+    position trace, starting at 0.
+
+    Parameters
+    ----------
+    positions : sequence of array_like
+        Position traces [m] (one per recording, in time order).
+    forces : sequence of array_like
+        The friction force to explain at each sample [N]: motor force minus
+        cogging, restoring, inertial and viscous terms.
+    levels : sequence of array_like
+        The Stribeck level ``F_C + (F_br - F_C) exp(-|v / v_s|^delta)`` at each sample [N].
+    bounds : (float, float)
+        Search range of ``x_pre`` [m].
+    min_gain : float
+        Smallest relative drop of the residual sum of squares between the
+        optimum and the search bounds for ``x_pre`` to count as determined [-].
+
+    Returns
+    -------
+    dict
+        ``x_pre`` [m] (0 when not determined), ``determined``, ``rms_n`` (at
+        the optimum), ``rms_at_bounds_n``, ``samples``.
+    """
+    from scipy import optimize as _opt
+
+    pos = [np.ascontiguousarray(p, dtype=np.float64) for p in positions]
+    frc = [np.asarray(f, dtype=np.float64) for f in forces]
+    lev = [np.asarray(g, dtype=np.float64) for g in levels]
+    n = sum(p.size for p in pos)
+    if n == 0:
+        raise CoverageError("presliding: no samples")
+
+    def sse(log_x: float) -> float:
+        x = float(np.exp(log_x))
+        return float(sum(np.sum((f - presliding_direction(p, x) * g) ** 2) for p, f, g in zip(pos, frc, lev)))
+
+    lo, hi = np.log(bounds[0]), np.log(bounds[1])
+    res = _opt.minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+    best, at_bounds = float(res.fun), (sse(lo), sse(hi))
+    gain = 1.0 - best / min(at_bounds) if min(at_bounds) > 0 else 0.0
+    determined = bool(gain >= min_gain and lo + 0.05 < res.x < hi - 0.05)
+    return {"x_pre": float(np.exp(res.x)) if determined else 0.0, "determined": determined,
+            "rms_n": float(np.sqrt(best / n)), "rms_at_bounds_n": [float(np.sqrt(v / n)) for v in at_bounds],
+            "relative_gain": float(gain), "samples": int(n)}
+
+
 # ------------------------------------------------------------------ driver
 @dataclass
 class IdentificationReport:
@@ -303,7 +362,7 @@ class IdentificationReport:
         The identified axes.
     steps : dict
         Per axis, per step (``restoring``, ``cogging``, ``friction``,
-        ``mass``), the fitted values and their fit quality (RMS residual [N],
+        ``mass``, ``presliding``), the fitted values and their fit quality (RMS residual [N],
         R^2, number of points).
     seconds : dict
         Wall time of steps 1-3 per axis and of the joint mass step [s].
@@ -401,7 +460,8 @@ def _identify_axis(data: list[dict], ax: str, km: float, pole_pitch: float, size
 
 def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict | None = None,
                        pole_pitch: float = 0.023, table_size: int = 64, delta: float = 2.0,
-                       min_accel: float = 0.3, min_accel_speed: float | None = None) -> IdentificationReport:
+                       min_accel: float = 0.3, min_accel_speed: float | None = None,
+                       presliding: bool = True) -> IdentificationReport:
     """Identify the three axes by the four-step method, with the fit quality of every step.
 
     Parameters
@@ -425,6 +485,9 @@ def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict 
     min_accel_speed : float, optional
         Smallest |velocity| used for the masses [m/s] (stiction is not in the
         model); default ``max(3 v_s, 5 mm/s)``.
+    presliding : bool
+        Run step 5 (the presliding distance ``x_pre``); False leaves it 0
+        (the paper's model).
 
     Returns
     -------
@@ -468,6 +531,20 @@ def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict 
         axes[ax] = axes[ax].with_values(m=ms["m"][ax])
         steps[ax]["mass"] = {"m_kg": ms["m"][ax], "stacked_kg": ms["stacked"][ax], "rms_n": ms["rms_n"][ax],
                              "r2": ms["r2"][ax], "samples": ms["samples"][ax]}
+    if presliding:
+        stacked = ThreeAxisModel(**axes).stacked_masses()
+        for ax in AXES:
+            t0 = time.perf_counter()
+            axis, pos, frc, lev = axes[ax], [], [], []
+            for d in _axis_data(recs, ax, kms[ax]):
+                pos.append(d["s"])
+                frc.append(d["F"] - axis.cogging_force(d["s"]) - axis.restoring_force(d["s"])
+                           - stacked[ax] * d["a"] - axis.sigma * d["v"])
+                lev.append(axis.stribeck_level(d["v"]))
+            fit = fit_presliding(pos, frc, lev)
+            axes[ax] = axis.with_values(x_pre=fit["x_pre"])
+            steps[ax]["presliding"] = fit
+            seconds[ax] += time.perf_counter() - t0
     return IdentificationReport(ThreeAxisModel(**axes), steps, seconds)
 
 

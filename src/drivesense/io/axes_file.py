@@ -14,6 +14,7 @@
     sigma = 700.0       # N s/m, viscous friction
     delta = 2.0         # Stribeck shape factor
     pole_pitch = 0.023  # m
+    x_pre = 1.5e-05     # m, presliding distance (optional; 0 or absent: the paper's sgn(v))
     cogging = [0.0, 2.3, ...]  # N, uniform grid over one pole pitch (periodic)
 
     [y]
@@ -35,6 +36,7 @@ _COMMENTS = {"K_m": "N/A, motor constant (catalogue)", "k": "N/m, restoring cons
              "m": "kg, the axis's own moving mass (X carries Z; Y carries X and Z)", "F_C": "N, Coulomb friction",
              "F_br": "N, breakaway friction", "v_s": "m/s, Stribeck velocity", "sigma": "N s/m, viscous friction",
              "delta": "Stribeck shape factor", "pole_pitch": "m",
+             "x_pre": "m, presliding distance of the Dahl friction state (0: the paper's sgn(v))",
              "cogging": "N, uniform grid over one pole pitch (periodic)"}
 
 

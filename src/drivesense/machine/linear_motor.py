@@ -10,6 +10,14 @@ with the Stribeck curve of Eq. 4 (shape factor ``delta = 2``)::
 
     F_fr(v) = sgn(v) (F_C + (F_br - F_C) exp(-|v / v_s|^delta)) + sigma v
 
+Beyond the paper, ``sgn(v)`` may be replaced by a presliding (Dahl) state
+``d`` in [-1, 1] that follows the position: over a travel ``ds`` it relaxes
+towards ``sgn(ds)`` as ``exp(-|ds| / x_pre)`` (:func:`presliding_direction`).
+Sliding, ``d = sgn(v)`` and Eq. 4 is unchanged; at standstill and through
+reversals the friction becomes a stiff, hysteretic spring of stiffness about
+``F_br / x_pre`` instead of a sign that flips with the velocity noise.
+``x_pre = 0`` keeps the paper's model.
+
 and the cogging force a lookup table over one pole pitch.  On the machine of
 the paper Y carries X, and X carries Z (Eq. 2), so the masses the motors move
 are ``m_x + m_z`` (X), ``m_x + m_y + m_z`` (Y) and ``m_z`` (Z).
@@ -37,12 +45,14 @@ from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.machine.friction import LuGreFriction, Ripple
 
 __all__ = ["LinearMotorAxis", "ThreeAxisModel", "LinearAxisPhysics", "LinearMachinePhysics", "AXES",
-           "cogging_table_force", "harmonic_cogging_table", "linear_machine_physics", "linear_machine_model"]
+           "cogging_table_force", "harmonic_cogging_table", "linear_machine_physics", "linear_machine_model",
+           "presliding_direction"]
 
 #: Axis letters of the 3-axis machine, in order.
 AXES = ("x", "y", "z")
-_SCALARS = ("K_m", "k", "s_r", "m", "F_C", "F_br", "v_s", "sigma", "delta", "pole_pitch")
-_NONNEG = ("k", "F_C", "F_br", "sigma")
+_SCALARS = ("K_m", "k", "s_r", "m", "F_C", "F_br", "v_s", "sigma", "delta", "pole_pitch", "x_pre")
+_OPTIONAL = ("pole_pitch", "delta", "x_pre")
+_NONNEG = ("k", "F_C", "F_br", "sigma", "x_pre")
 _POSITIVE = ("K_m", "m", "v_s", "delta", "pole_pitch")
 
 
@@ -69,6 +79,59 @@ def cogging_table_force(table: np.ndarray, pole_pitch: float, s: float) -> float
     i %= n
     j = i + 1 if i + 1 < n else 0
     return table[i] + f * (table[j] - table[i])
+
+
+@njit(cache=True)
+def _dahl_direction(position, x_pre, s_prev, d0):
+    out = np.empty(position.size)
+    d = d0
+    prev = s_prev
+    for k in range(position.size):
+        ds = position[k] - prev
+        prev = position[k]
+        if ds > 0.0:
+            d = 1.0 + (d - 1.0) * math.exp(-ds / x_pre)
+        elif ds < 0.0:
+            d = -1.0 + (d + 1.0) * math.exp(ds / x_pre)
+        out[k] = d
+    return out
+
+
+def presliding_direction(position, x_pre: float, *, previous_position: float | None = None,
+                         direction: float = 0.0) -> np.ndarray:
+    """Presliding friction state ``d`` in [-1, 1] along a position trace (Dahl model, rate-independent).
+
+    Over each step ``ds`` between samples ``d`` relaxes exactly towards
+    ``sgn(ds)``: ``d <- sgn(ds) + (d - sgn(ds)) exp(-|ds| / x_pre)``.  Sliding
+    over a few ``x_pre`` saturates it at the direction of motion; position
+    noise at standstill moves it by about ``noise / x_pre``.
+
+    Parameters
+    ----------
+    position : array_like
+        Axis position [m], 1-D.
+    x_pre : float
+        Presliding distance [m] (> 0).
+    previous_position : float, optional
+        Position of the sample before the first [m] (streaming); default: the
+        first sample (no step into it).
+    direction : float
+        State before the first sample [-] (0: unknown, no friction held).
+
+    Returns
+    -------
+    ndarray
+        ``d`` per sample.
+    """
+    s = np.ascontiguousarray(_signal(position, "position"), dtype=np.float64).ravel()
+    if not x_pre > 0:
+        raise ConfigError(f"presliding distance 'x_pre' must be > 0 [m], got {x_pre!r}")
+    if not -1.0 <= direction <= 1.0:
+        raise ConfigError(f"presliding state 'direction' must lie in [-1, 1], got {direction!r}")
+    if s.size == 0:
+        return s.copy()
+    prev = float(s[0]) if previous_position is None else float(previous_position)
+    return _dahl_direction(s, float(x_pre), prev, float(direction))
 
 
 def harmonic_cogging_table(harmonics, n: int = 64) -> np.ndarray:
@@ -124,6 +187,9 @@ class LinearMotorAxis:
         Pole pitch of the motor [m] (e.g. 0.023).
     delta : float
         Stribeck shape factor [-] (2 in the paper).
+    x_pre : float
+        Presliding distance [m] of the Dahl friction state (beyond the paper;
+        see :func:`presliding_direction`); 0 (default): the paper's ``sgn(v)``.
     """
 
     K_m: float
@@ -137,6 +203,7 @@ class LinearMotorAxis:
     cogging: np.ndarray = field(default_factory=lambda: np.zeros(64))
     pole_pitch: float = 0.023
     delta: float = 2.0
+    x_pre: float = 0.0
 
     def __post_init__(self) -> None:
         for name in _SCALARS:
@@ -180,7 +247,7 @@ class LinearMotorAxis:
         t = self.cogging
         return t[i] + f * (t[(i + 1) % n] - t[i])
 
-    def friction_force(self, velocity, v_eps: float = 0.0):
+    def friction_force(self, velocity, v_eps: float = 0.0, direction=None):
         """Stribeck plus viscous friction of Eq. 4 [N] at ``velocity`` [m/s].
 
         Parameters
@@ -190,11 +257,21 @@ class LinearMotorAxis:
         v_eps : float
             Half-width [m/s] of a linear ramp replacing ``sgn(v)``; 0 (default)
             is the paper's sign function.
+        direction : array_like, optional
+            Presliding state in [-1, 1] replacing ``sgn(v)`` (e.g.
+            :func:`presliding_direction`); overrides ``v_eps``.
         """
         v = _signal(velocity, "velocity")
-        sgn = np.sign(v) if v_eps <= 0 else np.clip(v / v_eps, -1.0, 1.0)
-        level = self.F_C + (self.F_br - self.F_C) * np.exp(-np.abs(v / self.v_s) ** self.delta)
-        return sgn * level + self.sigma * v
+        if direction is not None:
+            sgn = _signal(direction, "direction")
+        else:
+            sgn = np.sign(v) if v_eps <= 0 else np.clip(v / v_eps, -1.0, 1.0)
+        return sgn * self.stribeck_level(v) + self.sigma * v
+
+    def stribeck_level(self, velocity):
+        """Magnitude of the Stribeck friction ``F_C + (F_br - F_C) exp(-|v / v_s|^delta)`` [N] at ``velocity`` [m/s]."""
+        v = _signal(velocity, "velocity")
+        return self.F_C + (self.F_br - self.F_C) * np.exp(-np.abs(v / self.v_s) ** self.delta)
 
     def cogging_amplitudes(self, n_harmonics: int = 3) -> np.ndarray:
         """Amplitudes [N] of harmonics 1..``n_harmonics`` of the pole pitch in the cogging table."""
@@ -228,7 +305,7 @@ class LinearMotorAxis:
         unknown = [k for k in values if k not in names]
         if unknown:
             raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)} (expected {', '.join(names)})")
-        required = [n for n in names if n not in ("pole_pitch", "delta")]
+        required = [n for n in names if n not in _OPTIONAL]
         missing = [k for k in required if k not in values]
         if missing:
             raise ConfigError(f"{source}: missing key(s) {', '.join(missing)}")
@@ -268,7 +345,8 @@ class ThreeAxisModel:
         mx, my, mz = self.x.m, self.y.m, self.z.m
         return {"x": mx + mz, "y": mx + my + mz, "z": mz}
 
-    def process_force(self, name: str, current, position, velocity, acceleration, *, v_eps: float = 0.0):
+    def process_force(self, name: str, current, position, velocity, acceleration, *, v_eps: float = 0.0,
+                      direction=None):
         """Process force on the workpiece along +axis by Eq. 2 [N].
 
         Parameters
@@ -285,11 +363,14 @@ class ThreeAxisModel:
             Axis acceleration [m/s^2].
         v_eps : float
             Sign-function ramp of the friction [m/s] (see :meth:`LinearMotorAxis.friction_force`).
+        direction : array_like, optional
+            Presliding friction state in [-1, 1] replacing the sign (see
+            :func:`presliding_direction`).
         """
         ax = self.axis(name)
         mass = self.stacked_masses()[name]
         return (ax.motor_force(current) - ax.restoring_force(position) - mass * _signal(acceleration, "acceleration")
-                - ax.cogging_force(position) - ax.friction_force(velocity, v_eps))
+                - ax.cogging_force(position) - ax.friction_force(velocity, v_eps, direction))
 
     def to_dict(self) -> dict:
         """``{x: {...}, y: {...}, z: {...}}`` of plain types (SI)."""
