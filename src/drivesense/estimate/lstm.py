@@ -112,7 +112,7 @@ class LSTM:
                 "provenance": list(rec.meta.get("provenance", [])) + [f"estimate {self.name}"]}
         if intervals:
             meta["interval_coverage"] = model.config.coverage
-        return Recording.from_arrays(out, fs=rec.fs, t0=rec.t0, units={k: "N" for k in out}, meta=meta)
+        return Recording._from_trusted(out, {k: "N" for k in out}, fs=rec.fs, t0=rec.t0, meta=meta)
 
     def stream(self, fs: float | None = None, *, latency_s: float = 0.0) -> "LearnedStream":
         """Chunk-by-chunk reconstruction at the model's rate.

@@ -1,11 +1,16 @@
 """Compiled inference of a stacked LSTM with a linear output (no torch needed at run time).
 
 PyTorch's LSTM (gates in the order input, forget, cell, output; Lipton et al.,
-the third paper's Eq. 11-16) evaluated sample by sample in numba (tanh and the
-sigmoid by a rational approximation, |error| < 2e-7), with the
+the third paper's Eq. 11-16) evaluated sample by sample in numba, in single
+precision like the training (tanh and the sigmoid by a branch-free rational
+approximation, |error| < 3e-7, so that the gate loop vectorises), with the
 hidden and cell states carried in :class:`LSTMState`: a trace processed at once
 or chunk by chunk gives the same numbers to the bit.  Optional dropout masks
 between layers give Monte-Carlo-dropout samples for prediction intervals.
+
+Layout for the kernel: per layer, the input and recurrent weights stacked and
+transposed, ``(layers, max_in + H, 4H)``, so that each step is one
+multiply-accumulate sweep over the gate rows per input.
 """
 
 from __future__ import annotations
@@ -48,6 +53,21 @@ class LSTMWeights:
     head_b: float
     dropout: float = 0.0
 
+    def __post_init__(self) -> None:
+        layers, g4, max_in = self.w_ih.shape
+        hid = g4 // 4
+        packed = np.zeros((layers, max_in + hid, g4), dtype=np.float32)
+        for k in range(layers):
+            n_in = int(self.in_dims[k])
+            packed[k, :n_in] = self.w_ih[k, :, :n_in].T
+            packed[k, n_in:n_in + hid] = self.w_hh[k].T
+        scale = np.full(g4, 0.5, dtype=np.float32)      # sigmoid(x) = (1 + tanh(x / 2)) / 2; the cell gate is tanh
+        scale[2 * hid:3 * hid] = 1.0
+        object.__setattr__(self, "packed", packed)
+        object.__setattr__(self, "packed_bias", np.ascontiguousarray(self.bias, dtype=np.float32))
+        object.__setattr__(self, "gate_scale", scale)
+        object.__setattr__(self, "packed_head", np.ascontiguousarray(self.head_w, dtype=np.float32))
+
     @property
     def layers(self) -> int:
         """Number of stacked layers."""
@@ -89,7 +109,7 @@ class LSTMWeights:
 
 
 class LSTMState:
-    """Hidden and cell states of one network (constant size).
+    """Hidden and cell states of one network (constant size, single precision).
 
     Parameters
     ----------
@@ -98,8 +118,8 @@ class LSTMState:
     """
 
     def __init__(self, weights: LSTMWeights) -> None:
-        self.h = np.zeros((weights.layers, weights.hidden))
-        self.c = np.zeros((weights.layers, weights.hidden))
+        self.h = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
+        self.c = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
 
 
 def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int | None = None) -> np.ndarray:
@@ -116,59 +136,73 @@ def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int
     seed : int, optional
         With a seed, dropout is applied between layers (Monte-Carlo dropout);
         without, the network runs deterministically (evaluation mode).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Network output (float64).
     """
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    out = np.empty(x.shape[0])
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    out = np.empty(x.shape[0], dtype=np.float32)
     p = weights.dropout if seed is not None else 0.0
-    _lstm(weights.w_ih, weights.w_hh, weights.bias, weights.in_dims, weights.head_w, weights.head_b,
-          state.h, state.c, x, out, p, -1 if seed is None else int(seed))
-    return out
+    _lstm(weights.packed, weights.packed_bias, weights.gate_scale, weights.in_dims, weights.packed_head,
+          np.float32(weights.head_b), state.h, state.c, x, out, np.float32(p), -1 if seed is None else int(seed))
+    return out.astype(np.float64)
 
 
 @njit(cache=True, fastmath=True, inline="always")
 def _tanh(x):
-    """tanh: Lambert's continued fraction (7 terms) for |x| < 2.5, the exponential form beyond."""
-    if x > 2.5 or x < -2.5:
-        return 1.0 - 2.0 / (np.exp(2.0 * x) + 1.0)
+    """tanh by a [13/6] rational approximation on [-7.905, 7.905], saturated beyond (branch-free)."""
+    x = min(max(x, -7.90531110763549805), 7.90531110763549805)
     x2 = x * x
-    return x * (135135.0 + x2 * (17325.0 + x2 * (378.0 + x2))) / (135135.0 + x2 * (62370.0 + x2 * (3150.0 + x2 * 28.0)))
+    p = x2 * -2.76076847742355e-16 + 2.00018790482477e-13
+    p = x2 * p + -8.60467152213735e-11
+    p = x2 * p + 5.12229709037114e-08
+    p = x2 * p + 1.48572235717979e-05
+    p = x2 * p + 6.37261928875436e-04
+    p = x2 * p + 4.89352455891786e-03
+    q = x2 * 1.19825839466702e-06 + 1.18534705686654e-04
+    q = x2 * q + 2.26843463243900e-03
+    q = x2 * q + 4.89352518554385e-03
+    return x * p / q
 
 
 @njit(cache=True, fastmath=True, nogil=True)
-def _lstm(w_ih, w_hh, bias, in_dims, head_w, head_b, h, c, x, out, p, seed):
-    layers, g4, _ = w_ih.shape
+def _lstm(w, bias, scale, in_dims, head_w, head_b, h, c, x, out, p, seed):
+    layers, _, g4 = w.shape
     hid = g4 // 4
-    inp = np.empty(max(w_ih.shape[2], hid))
-    gates = np.empty(g4)
+    z = np.empty(w.shape[1], dtype=np.float32)
+    gates = np.empty(g4, dtype=np.float32)
     if seed >= 0:
         np.random.seed(seed)
     keep = 1.0 - p
     for t in range(x.shape[0]):
-        n_in = in_dims[0]
-        for j in range(n_in):
-            inp[j] = x[t, j]
         for k in range(layers):
             n_in = in_dims[k]
-            for r in range(g4):
-                acc = bias[k, r]
+            if k == 0:
                 for j in range(n_in):
-                    acc += w_ih[k, r, j] * inp[j]
+                    z[j] = x[t, j]
+            else:
                 for j in range(hid):
-                    acc += w_hh[k, r, j] * h[k, j]
-                gates[r] = acc
+                    v = h[k - 1, j]
+                    if p > 0.0:
+                        v = v / keep if np.random.random() < keep else 0.0
+                    z[j] = v
             for j in range(hid):
-                i_g = 0.5 + 0.5 * _tanh(0.5 * gates[j])
-                f_g = 0.5 + 0.5 * _tanh(0.5 * gates[hid + j])
-                g_g = _tanh(gates[2 * hid + j])
-                o_g = 0.5 + 0.5 * _tanh(0.5 * gates[3 * hid + j])
-                c[k, j] = f_g * c[k, j] + i_g * g_g
-                h[k, j] = o_g * _tanh(c[k, j])
+                z[n_in + j] = h[k, j]
+            for r in range(g4):
+                gates[r] = bias[k, r]
+            for j in range(n_in + hid):
+                zj = z[j]
+                for r in range(g4):
+                    gates[r] += w[k, j, r] * zj
+            for r in range(g4):
+                gates[r] = _tanh(scale[r] * gates[r])
             for j in range(hid):
-                v = h[k, j]
-                if p > 0.0 and k < layers - 1:
-                    v = v / keep if np.random.random() < keep else 0.0
-                inp[j] = v
+                cc = (0.5 + 0.5 * gates[hid + j]) * c[k, j] + (0.5 + 0.5 * gates[j]) * gates[2 * hid + j]
+                c[k, j] = cc
+                h[k, j] = (0.5 + 0.5 * gates[3 * hid + j]) * _tanh(cc)
         y = head_b
         for j in range(hid):
-            y += head_w[j] * inp[j]
+            y += head_w[j] * h[layers - 1, j]
         out[t] = y

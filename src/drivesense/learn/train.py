@@ -100,6 +100,19 @@ class TrainConfig:
     coverage: float = 0.9
 
 
+_POOL = None
+
+
+def _pool():
+    """The thread pool the networks run on (created once: starting threads per trace costs more than a short trace)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=len(TARGET_CHANNELS), thread_name_prefix="drivesense-lstm")
+    return _POOL
+
+
 @dataclass
 class LearnedModel:
     """A trained reconstruction (see module docstring for the folder format).
@@ -158,12 +171,9 @@ class LearnedModel:
         out = {}
         x_all, bases = self.inputs(recording)
         inputs = {ch: self.network_input(x_all, bases[ch], ch) for ch in TARGET_CHANNELS}
-        # the compiled kernel releases the GIL: the three networks run side by side
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=len(TARGET_CHANNELS)) as pool:
-            raw = dict(zip(TARGET_CHANNELS, pool.map(
-                lambda ch: run_lstm(self.weights[ch], LSTMState(self.weights[ch]), inputs[ch]), TARGET_CHANNELS)))
+        # the compiled kernel releases the GIL: the three networks run side by side on a kept pool
+        raw = dict(zip(TARGET_CHANNELS, _pool().map(
+            lambda ch: run_lstm(self.weights[ch], LSTMState(self.weights[ch]), inputs[ch]), TARGET_CHANNELS)))
         for ch in TARGET_CHANNELS:
             base, x, w = bases[ch], inputs[ch], self.weights[ch]
             ts = self.target_scalers[ch]
