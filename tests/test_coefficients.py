@@ -183,3 +183,49 @@ def test_cli_calibrate_bad_input_exits_2(tmp_path):
     assert res.exit_code == 2 and "feed_per_tooth" in res.output and "Traceback" not in res.output
     res = runner.invoke(app, ["wear", "calibrate", str(tmp_path / "missing.csv")])
     assert res.exit_code == 2
+
+
+def test_runout_free_bases_are_eq_2_and_measured_runout_removes_the_bias():
+    """Without runout the mechanistic bases are Q and A_c; with runout, giving it to the fit removes the K_te bias."""
+    from drivesense.identify.tool_runout import ToolRunout, power_bases
+    from drivesense.machine.milling import CuttingCoefficients, milling_forces
+    from drivesense.sim.tool_life import section4_calibration
+
+    cuts = section4_calibration().calibration_cuts()       # 4 flutes, 0.04-0.10 mm/tooth, 7-100 % immersion
+    b_c, b_e = power_bases(cuts, ToolRunout(0.0))
+    np.testing.assert_allclose(b_c, [c.material_removal_rate for c in cuts], rtol=2e-3)
+    np.testing.assert_allclose(b_e, [c.contact_area_rate for c in cuts], rtol=2e-3)
+    # noise-free power of a 4-flute tool with 6 um runout, from the force model itself
+    runout = ToolRunout(6e-6, 0.4)
+    angle = np.linspace(0, 2 * math.pi, 720, endpoint=False)
+    power = []
+    for c in cuts:
+        f = milling_forces(c.end_mill(30.0, runout.offset, runout.phase), CuttingCoefficients(KTC, 0, 0, KTE, 0, 0),
+                           c.milling_cut(16), angle, c.feed_per_tooth)
+        power.append(float(np.mean(f.torque)) * c.spindle_speed)
+    plain = calibrate_from_power(cuts, power, warn=False)
+    aware = calibrate_from_power(cuts, power, warn=False, runout=runout)
+    assert abs(plain.Kte / KTE - 1) > 0.02                                 # Eq. 2 reads lost contact as less K_te
+    assert aware.Ktc == pytest.approx(KTC, rel=1e-6) and aware.Kte == pytest.approx(KTE, rel=1e-6)
+    with pytest.raises(ConfigError, match="offset"):
+        ToolRunout(-1e-6)
+
+
+def test_cli_calibrate_with_a_measured_runout(tmp_path):
+    from drivesense.sim.tool_life import section4_calibration, simulate_calibration
+
+    table, (ktc, kte), measured = simulate_calibration(section4_calibration(), seed=8, repeats=10,
+                                                       measured_runout=0.5e-6)
+    path = tmp_path / "cuts.csv"
+    rows = ["diameter [mm],flutes,axial_depth [mm],spindle_speed [rpm],feed_per_tooth [mm],entry_angle [deg],"
+            "exit_angle [deg],cutting_power [W]"]
+    for c, p in zip(table.cuts, table.cutting_power):
+        rows.append(f"{c.diameter * 1e3},{c.flutes},{c.axial_depth * 1e3},{c.spindle_speed * 30 / math.pi},"
+                    f"{c.feed_per_tooth * 1e3},{math.degrees(c.entry_angle)},{math.degrees(c.exit_angle)},{p}")
+    path.write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["wear", "calibrate", str(path), "--json", str(tmp_path / "f.json"),
+                                   "--runout-um", str(measured.offset * 1e6),
+                                   "--runout-phase-deg", str(math.degrees(measured.phase))])
+    assert res.exit_code == 0, res.output
+    fit = json.loads((tmp_path / "f.json").read_text())
+    assert abs(fit["Kte_n_m"] / kte - 1) < 0.04 and abs(fit["Ktc_n_m2"] / ktc - 1) < 0.02, fit

@@ -116,3 +116,30 @@ def test_missing_torch_gives_a_clear_message(monkeypatch, tiny):
     monkeypatch.setitem(sys.modules, "torch", None)
     with pytest.raises(ConfigError, match="pip install torch"):
         LSTM(config=TINY).fit(tiny[2])
+
+
+def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
+    """sin/cos of the pole-pitch harmonics join the inputs; 0 harmonics (or an older saved model) is the paper's 14."""
+    from drivesense.learn.features import position_features
+
+    s = np.array([0.0, 0.023 / 4, 0.023 / 2, 0.0115 + 0.023])
+    f = position_features([s, s, s], 0.023, 2)
+    assert f.shape == (4, 12) and f.dtype == np.float32
+    np.testing.assert_allclose(f[:, 0], [0, 1, 0, 0], atol=1e-6)       # sin(2 pi s / p)
+    np.testing.assert_allclose(f[:, 3], [1, -1, 1, 1], atol=1e-6)      # cos(4 pi s / p)
+    assert trained.model.weights["force_x"].in_dims[0] == 14 + 18
+    assert trained.model.weights["force_x"].skip_w.shape == (32,)            # the linear skip, saved and loaded
+    _, _, runs = tiny
+    import dataclasses
+
+    paper = LSTM(config=dataclasses.replace(TINY, position_harmonics=0, linear_skip=False, epochs=1)).fit(runs)
+    assert paper.model.weights["force_x"].in_dims[0] == 14 and paper.model.weights["force_x"].skip_w is None
+    paper.save(tmp_path / "old")
+    cfg = json.loads((tmp_path / "old" / "config.json").read_text())
+    for key in ("position_harmonics", "pole_pitch", "linear_skip"):            # as saved before these existed
+        del cfg["config"][key]
+    (tmp_path / "old" / "config.json").write_text(json.dumps(cfg))
+    rec = runs[0]
+    assert np.array_equal(LSTM.load(tmp_path / "old").estimate(rec)["force_y"], paper.estimate(rec)["force_y"])
+    with pytest.raises(ConfigError, match="position_harmonics"):
+        TrainConfig(position_harmonics=-1)

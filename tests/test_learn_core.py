@@ -91,3 +91,21 @@ def test_kernel_matches_pytorch():
     state.update({f"head.{k}": v for k, v in head.state_dict().items()})
     out = run_lstm(LSTMWeights.from_state_dict(state, 3), LSTMState(LSTMWeights.from_state_dict(state, 3)), x)
     np.testing.assert_allclose(out, ref, atol=2e-5)      # the kernel runs in single precision, like training
+
+
+def test_kernel_with_a_linear_skip_matches_pytorch():
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(1)
+    lstm = torch.nn.LSTM(14, 20, 3, batch_first=True).double().eval()
+    head, skip = torch.nn.Linear(20, 1).double(), torch.nn.Linear(14, 1, bias=False).double()
+    x = np.random.default_rng(3).uniform(-1, 1, (500, 14))
+    with torch.no_grad():
+        xt = torch.from_numpy(x)[None]
+        ref = (head(lstm(xt)[0]) + skip(xt))[0, :, 0].numpy()
+    state = {f"lstm.{k}": v for k, v in lstm.state_dict().items()}
+    state.update({f"head.{k}": v for k, v in head.state_dict().items()})
+    state["skip.weight"] = skip.weight
+    w = LSTMWeights.from_state_dict(state, 3)
+    np.testing.assert_allclose(run_lstm(w, LSTMState(w), x), ref, atol=2e-5)
+    no_skip = LSTMWeights.from_state_dict({k: v for k, v in state.items() if k != "skip.weight"}, 3)
+    assert not np.allclose(run_lstm(no_skip, LSTMState(no_skip), x), ref, atol=1e-3)

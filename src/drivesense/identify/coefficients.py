@@ -216,7 +216,7 @@ def fit_tangential_coefficients(h_avg, force_per_depth, *, weights=None, max_cor
                          see_saw, tuple(notes))
 
 
-def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, **kw) -> TangentialFit:
+def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, runout=None, **kw) -> TangentialFit:
     """K_tc and K_te from the average cutting power of calibration cuts (Eq. 4, 5 and 1).
 
     Parameters
@@ -227,6 +227,10 @@ def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, **kw) -> Tan
         Average cutting power of each cut [W]: spindle power in the cut minus the air-cut power.
     warn : bool
         Issue :class:`SeeSawWarning` when the cuts cannot separate the coefficients.
+    runout : ToolRunout, optional
+        The tool's measured runout (:mod:`drivesense.identify.tool_runout`): the chip thickness
+        and force per depth of each cut then come from the mechanistic model with that runout
+        (flutes that lose contact no longer rub) instead of Eq. 4-5.
     **kw
         Passed to :func:`fit_tangential_coefficients` (``weights``, ``max_correlation``...).
 
@@ -237,6 +241,11 @@ def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, **kw) -> Tan
     cuts = list(cuts)
     if not cuts:
         raise IdentificationError("no calibration cuts: K_tc and K_te need cuts at two or more chip thicknesses")
+    if runout is not None:
+        from drivesense.identify.tool_runout import power_bases
+
+        b_c, b_e = power_bases(cuts, runout)
+        return fit_tangential_coefficients(b_c / b_e, _vector(cutting_power, "cutting_power") / b_e, warn=warn, **kw)
     h = np.array([c.average_chip_thickness for c in cuts])
     return fit_tangential_coefficients(h, force_per_depth(cutting_power, cuts), warn=warn, **kw)
 

@@ -20,6 +20,7 @@ from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.recording import Recording
 
 __all__ = ["INPUT_CHANNELS", "TARGET_CHANNELS", "Scaler", "TargetScaler", "input_matrix", "filtered_target",
+           "position_features",
            "resample_to"]
 
 #: NC channels the networks read, in order.
@@ -99,6 +100,36 @@ def input_matrix(recording: Recording) -> np.ndarray:
     """The ``(n_samples, 14)`` input matrix of a trace, in SI (before scaling)."""
     recording.require(*INPUT_CHANNELS)
     return np.column_stack([recording[c] for c in INPUT_CHANNELS])
+
+
+def position_features(positions, pole_pitch: float, harmonics: int) -> np.ndarray:
+    """Sine and cosine of harmonics 1..``harmonics`` of the pole pitch for each axis position (float32).
+
+    Cogging repeats with the motors' pole pitch (a catalogue value): a small
+    LSTM cannot make a periodic function of a position scaled to [-1, 1], but
+    it can weigh these columns.  They are already in [-1, 1] and not scaled.
+
+    Parameters
+    ----------
+    positions : sequence of array_like
+        Axis positions [m] (x, y, z), equally long.
+    pole_pitch : float
+        Pole pitch [m].
+    harmonics : int
+        Number of harmonics (0: no columns).
+
+    Returns
+    -------
+    ndarray, shape (n_samples, 2 * harmonics * len(positions))
+    """
+    cols = []
+    for s in positions:
+        phase = 2.0 * np.pi * np.asarray(s, float) / pole_pitch
+        for h in range(1, harmonics + 1):
+            cols += [np.sin(h * phase), np.cos(h * phase)]
+    if not cols:
+        return np.zeros((len(np.asarray(positions[0])) if len(positions) else 0, 0), dtype=np.float32)
+    return np.column_stack(cols).astype(np.float32)
 
 
 def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 120.0, order: int = 4,

@@ -41,6 +41,9 @@ class LSTMWeights:
         Output weights.
     head_b : float
         Output bias.
+    skip_w : ndarray, shape (inputs,), optional
+        Linear skip from the inputs straight to the output (``skip.weight``);
+        None: no skip (the paper's network).
     dropout : float
         Dropout probability between layers (used only when sampling).
     """
@@ -52,6 +55,7 @@ class LSTMWeights:
     head_w: np.ndarray
     head_b: float
     dropout: float = 0.0
+    skip_w: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         layers, g4, max_in = self.w_ih.shape
@@ -67,6 +71,10 @@ class LSTMWeights:
         object.__setattr__(self, "packed_bias", np.ascontiguousarray(self.bias, dtype=np.float32))
         object.__setattr__(self, "gate_scale", scale)
         object.__setattr__(self, "packed_head", np.ascontiguousarray(self.head_w, dtype=np.float32))
+        skip = np.zeros(int(self.in_dims[0]), dtype=np.float32)
+        if self.skip_w is not None:
+            skip[:] = np.asarray(self.skip_w, dtype=np.float32).ravel()
+        object.__setattr__(self, "packed_skip", skip)
 
     @property
     def layers(self) -> int:
@@ -85,7 +93,8 @@ class LSTMWeights:
         Parameters
         ----------
         state : dict
-            Mapping of names to arrays (tensors are converted with ``numpy()``).
+            Mapping of names to arrays (tensors are converted with ``numpy()``);
+        ``skip.weight`` (a linear skip from the inputs) is optional.
         layers : int
             Number of LSTM layers.
         dropout : float
@@ -105,7 +114,7 @@ class LSTMWeights:
         return cls(np.ascontiguousarray(packed_ih), np.ascontiguousarray(np.stack(w_hh)),
                    np.ascontiguousarray(np.stack(bias)), np.array([w.shape[1] for w in w_ih], dtype=np.int64),
                    np.ascontiguousarray(arr("head.weight").ravel()), float(arr("head.bias").ravel()[0]),
-                   float(dropout))
+                   float(dropout), arr("skip.weight").ravel() if "skip.weight" in state else None)
 
 
 class LSTMState:
@@ -146,7 +155,8 @@ def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int
     out = np.empty(x.shape[0], dtype=np.float32)
     p = weights.dropout if seed is not None else 0.0
     _lstm(weights.packed, weights.packed_bias, weights.gate_scale, weights.in_dims, weights.packed_head,
-          np.float32(weights.head_b), state.h, state.c, x, out, np.float32(p), -1 if seed is None else int(seed))
+          np.float32(weights.head_b), weights.packed_skip, state.h, state.c, x, out, np.float32(p),
+          -1 if seed is None else int(seed))
     return out.astype(np.float64)
 
 
@@ -168,7 +178,7 @@ def _tanh(x):
 
 
 @njit(cache=True, fastmath=True, nogil=True)
-def _lstm(w, bias, scale, in_dims, head_w, head_b, h, c, x, out, p, seed):
+def _lstm(w, bias, scale, in_dims, head_w, head_b, skip_w, h, c, x, out, p, seed):
     layers, _, g4 = w.shape
     hid = g4 // 4
     z = np.empty(w.shape[1], dtype=np.float32)
@@ -205,4 +215,6 @@ def _lstm(w, bias, scale, in_dims, head_w, head_b, h, c, x, out, p, seed):
         y = head_b
         for j in range(hid):
             y += head_w[j] * h[layers - 1, j]
+        for j in range(in_dims[0]):
+            y += skip_w[j] * x[t, j]
         out[t] = y

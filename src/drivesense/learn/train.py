@@ -31,6 +31,7 @@ import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, filtered_target,
+                                      position_features,
                                        input_matrix, resample_to)
 from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm
 from drivesense.recording import Recording
@@ -82,6 +83,16 @@ class TrainConfig:
         Monte-Carlo dropout samples for intervals.
     coverage : float
         Nominal coverage of the intervals.
+    position_harmonics : int
+        Beyond the paper: sine and cosine of this many harmonics of the pole
+        pitch of each axis position are added to the inputs (cogging is
+        periodic in the position); 0 gives the paper's 14 inputs.
+    pole_pitch : float
+        Pole pitch of the linear motors [m] (catalogue value).
+    linear_skip : bool
+        Beyond the paper: a linear path from the inputs straight to the output
+        beside the LSTM (the network learns what a linear map of the inputs
+        cannot: friction, reversals, history); False gives the paper's network.
     """
 
     hidden: int = 20
@@ -98,6 +109,16 @@ class TrainConfig:
     seed: int = 0
     mc_samples: int = 16
     coverage: float = 0.9
+    position_harmonics: int = 3
+    pole_pitch: float = 0.023
+    linear_skip: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.position_harmonics, bool) or not isinstance(self.position_harmonics, int) \
+                or not 0 <= self.position_harmonics <= 8:
+            raise ConfigError(f"'position_harmonics' must be an integer in 0..8, got {self.position_harmonics!r}")
+        if not (isinstance(self.pole_pitch, (int, float)) and self.pole_pitch > 0):
+            raise ConfigError(f"'pole_pitch' must be a length > 0 [m], got {self.pole_pitch!r}")
 
 
 _POOL = None
@@ -150,9 +171,20 @@ class LearnedModel:
     model_based: object = None
 
     # ------------------------------------------------------------- features
+    def scaled_inputs(self, arrays) -> np.ndarray:
+        """Network inputs shared by the three networks from ``{channel: samples}`` (SI): scaled NC
+        inputs, then the pole-pitch harmonics of the positions (float32)."""
+        x = self.input_scaler.transform(np.column_stack([np.asarray(arrays[c], float) for c in INPUT_CHANNELS]))
+        k = self.config.position_harmonics
+        if k:
+            pos = [arrays[f"{ax}_position"] for ax in ("x", "y", "z")]
+            x = np.hstack([x, position_features(pos, self.config.pole_pitch, k)])
+        return x
+
     def inputs(self, recording: Recording) -> tuple[np.ndarray, dict]:
-        """Scaled NC inputs and the model part of each output [N] (zeros for a plain LSTM)."""
-        x = self.input_scaler.transform(input_matrix(recording))
+        """Scaled network inputs and the model part of each output [N] (zeros for a plain LSTM)."""
+        recording.require(*INPUT_CHANNELS)
+        x = self.scaled_inputs({c: recording[c] for c in INPUT_CHANNELS})
         if self.kind == "hybrid":
             from drivesense.estimate.model_based import ModelBased
 
@@ -219,7 +251,13 @@ class LearnedModel:
         cfg = json.loads(path.read_text(encoding="utf-8"))
         if cfg.get("format") != "drivesense-learned-1":
             raise ConfigError(f"'{path}': unknown model format {cfg.get('format')!r}")
-        config = TrainConfig(**cfg["config"])
+        settings = dict(cfg["config"])
+        settings.setdefault("position_harmonics", 0)     # models saved before these had the paper's network
+        settings.setdefault("linear_skip", False)
+        try:
+            config = TrainConfig(**settings)
+        except TypeError as exc:
+            raise ConfigError(f"'{path}': bad training config: {exc}") from None
         weights = {}
         for ch in TARGET_CHANNELS:
             state = torch.load(folder / f"weights_{ch[-1]}.pt", weights_only=True)
@@ -244,6 +282,8 @@ def _to_state_dict(w: LSTMWeights, torch) -> dict:
         state[f"lstm.bias_hh_l{k}"] = torch.zeros(w.bias.shape[1], dtype=torch.float64)
     state["head.weight"] = torch.from_numpy(w.head_w[None, :].copy())
     state["head.bias"] = torch.tensor([w.head_b], dtype=torch.float64)
+    if w.skip_w is not None:
+        state["skip.weight"] = torch.from_numpy(np.asarray(w.skip_w, dtype=np.float64)[None, :].copy())
     return state
 
 
@@ -300,7 +340,7 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
     scaler = Scaler.fit([input_matrix(r) for r in train])
     model = LearnedModel(kind, config, scaler, {}, {}, model_based=model_based)
     prepared = {name: [(rec, *model.inputs(rec)) for rec in group] for name, group in (("train", train), ("val", val))}
-    history: dict = {"seconds": {}, "epochs": {}, "train_loss": {}, "val_loss": {}}
+    history: dict = {"seconds": {}, "epochs": {}, "train_loss": {}, "val_loss": {}, "initial_val_loss": {}}
     for ch in TARGET_CHANNELS:
         data = {}
         for name, group in prepared.items():
@@ -312,7 +352,7 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         weights, hist = _train_one(torch, model, ch, data["train"], data["val"], config, progress)
         model.weights[ch] = weights
         history["seconds"][ch] = time.perf_counter() - t0
-        for key in ("epochs", "train_loss", "val_loss"):
+        for key in ("epochs", "train_loss", "val_loss", "initial_val_loss"):
             history[key][ch] = hist[key]
         model.interval_scale[ch] = _calibrate(model, ch, data["val"])
     history["total_seconds"] = time.perf_counter() - t_start
@@ -335,21 +375,40 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             super().__init__()
             self.lstm = torch.nn.LSTM(n_in, config.hidden, config.layers, batch_first=True, dropout=config.dropout)
             self.head = torch.nn.Linear(config.hidden, 1)
+            self.skip = torch.nn.Linear(n_in, 1, bias=False) if config.linear_skip else None
 
         def forward(self, x):
             out, _ = self.lstm(x)
-            return self.head(out)[..., 0]
+            y = self.head(out)[..., 0]
+            return y + self.skip(x)[..., 0] if self.skip is not None else y
 
     torch.manual_seed(config.seed + 101 * TARGET_CHANNELS.index(ch))
     net = Net()
+    if net.skip is not None:
+        # start from the least-squares linear map of the inputs (the LSTM's head at zero): the network
+        # then spends its training on what a linear map cannot explain
+        a = np.vstack([np.column_stack([x, np.ones(x.shape[0], np.float32)]) for x in xs]).astype(np.float64)
+        coef, *_ = np.linalg.lstsq(a, np.concatenate(ys).astype(np.float64), rcond=None)
+        with torch.no_grad():
+            net.skip.weight.copy_(torch.from_numpy(coef[None, :-1].astype(np.float32)))
+            net.head.bias.fill_(float(coef[-1]))
+            net.head.weight.zero_()
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     lengths = np.array([x.shape[0] for x in xs])
     ok = np.flatnonzero(lengths > config.window)
     if ok.size == 0:
         raise InvalidSignalError(f"no training run is longer than the window ({config.window} samples)")
     weights_by_len = (lengths[ok] - config.window) / (lengths[ok] - config.window).sum()
+    def val_loss() -> float:
+        net.eval()
+        with torch.no_grad():
+            return float(np.mean([float(((net(torch.from_numpy(x[None]))[0] - torch.from_numpy(y)) ** 2).mean())
+                                  for x, y in zip(vx, vy)]))
+
     best, best_loss, since = None, np.inf, 0
-    hist = {"epochs": 0, "train_loss": [], "val_loss": []}
+    if net.skip is not None:      # the linear start is a candidate too: training must beat it on validation
+        best_loss, best = val_loss(), {k: t.detach().clone() for k, t in net.state_dict().items()}
+    hist = {"epochs": 0, "train_loss": [], "val_loss": [], "initial_val_loss": None if best is None else best_loss}
     for epoch in range(config.epochs):
         net.train()
         losses = []
@@ -364,10 +423,7 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             loss.backward()
             opt.step()
             losses.append(loss.item())
-        net.eval()
-        with torch.no_grad():
-            v = np.mean([float(((net(torch.from_numpy(x[None]))[0] - torch.from_numpy(y)) ** 2).mean())
-                         for x, y in zip(vx, vy)])
+        v = val_loss()
         hist["train_loss"].append(float(np.mean(losses)))
         hist["val_loss"].append(float(v))
         hist["epochs"] = epoch + 1

@@ -419,7 +419,7 @@ def _condition_key(cut) -> tuple:
 
 
 def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
-               reference: int | None = None, warn: bool = False) -> WearReport:
+               reference: int | None = None, warn: bool = False, runout=None) -> WearReport:
     """Track a tool's wear through a session of calibrations.
 
     Parameters
@@ -433,6 +433,9 @@ def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
         (default: its middle cut); later calibrations use the cut with the same conditions.
     warn : bool
         Issue see-saw warnings for each calibration (they are in the report either way).
+    runout : ToolRunout, optional
+        The tool's measured runout, used in every calibration (see
+        :func:`~drivesense.identify.coefficients.calibrate_from_power`).
 
     Returns
     -------
@@ -463,7 +466,7 @@ def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
 
     for k, (d, idx) in enumerate(groups):
         try:
-            fit = table.fit(idx, warn=warn)
+            fit = table.fit(idx, warn=warn, runout=runout)
         except IdentificationError as exc:
             raise IdentificationError(f"calibration {k} (distance {d:.4g} m): {exc}") from None
         match = [i for i in idx if _condition_key(table.cuts[i]) == ref_key]

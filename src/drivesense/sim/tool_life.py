@@ -488,7 +488,8 @@ def _append(rows, k, cuts, sp, ap, cal_no, dist) -> None:
 
 def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb: float = 0.0,
                          chip_depth: float = 0.0, repeats: int = 1,
-                         runout: float | None = None) -> tuple[CutTable, tuple[float, float]]:
+                         runout: float | None = None, measured_runout: float | None = None
+                         ) -> tuple[CutTable, tuple[float, float]] | tuple[CutTable, tuple[float, float], object]:
     """One set of calibration cuts at a frozen wear state, measured with the same noise as a tool life.
 
     Parameters
@@ -505,6 +506,11 @@ def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb:
         Times each cut is measured; the table holds the mean (the paper's Sec. 4 averaged 10).
     runout : float, optional
         Tool runout [m] instead of the tool's random one (0: Eq. 2 holds exactly, only noise remains).
+    measured_runout : float, optional
+        Also return the runout as a user would measure it
+        (:class:`~drivesense.identify.tool_runout.ToolRunout`): the true offset with a dial
+        indicator's error of this standard deviation [m], and the phase with an error of that
+        error over the offset [rad] (at least 0.1 rad, at most pi).
 
     Returns
     -------
@@ -534,4 +540,12 @@ def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb:
             power.append(float(np.mean(reps)))
     finally:
         numba.set_num_threads(prev_threads)
-    return CutTable(tuple(cuts), np.array(power), name=f"calibration {exp.name}, seed {seed}"), (ktc, kte)
+    table = CutTable(tuple(cuts), np.array(power), name=f"calibration {exp.name}, seed {seed}")
+    if measured_runout is None:
+        return table, (ktc, kte)
+    from drivesense.identify.tool_runout import ToolRunout
+
+    err = np.random.default_rng([seed, *exp.name.encode(), 2]).normal(0.0, 1.0, 2)
+    phase_sd = min(math.pi, max(0.1, measured_runout / max(tool.runout, 1e-9)))
+    measured = ToolRunout(max(0.0, tool.runout + measured_runout * err[0]), tool.runout_phase + phase_sd * err[1])
+    return table, (ktc, kte), measured
