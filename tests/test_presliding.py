@@ -9,7 +9,7 @@ import pytest
 from drivesense.bench.linear_axis import score_process
 from drivesense.errors import ConfigError
 from drivesense.estimate.model_based import ModelBased
-from drivesense.identify.linear_axis import fit_presliding
+from drivesense.identify.presliding import fit_presliding
 from drivesense.io.axes_file import read_axes_file, write_axes_file
 from drivesense.machine.linear_motor import ThreeAxisModel, linear_machine_model, presliding_direction
 from drivesense.sim.machining import simulate_process

@@ -143,15 +143,18 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
     for rec in held:
         lstm.estimate(rec)
     plain_infer_s = time.perf_counter() - t0
-    ev = evaluate_methods({"model": ModelBased(axes), "lstm": lstm, "hybrid": hybrid}, held)
+    # "model_paper": the same identified model with the paper's friction sign instead of the presliding state
+    ev = evaluate_methods({"model": ModelBased(axes), "model_paper": ModelBased(axes, presliding=False),
+                           "lstm": lstm, "hybrid": hybrid}, held)
     rows = ev["rows"]
     if progress:
         progress("evaluate")
-    med = {m: _median_rmse(rows, m) for m in ("model", "lstm", "hybrid")}
+    methods = ("model", "model_paper", "lstm", "hybrid")
+    med = {m: _median_rmse(rows, m) for m in methods}
     mean = {m: float(np.mean([r["rmse_n"] for r in rows if r["method"] == m and r["split"] == "test"
-                              and r["axis"] in "xy"])) for m in ("model", "lstm", "hybrid")}
-    pocket = {m: _median_rmse(rows, m, processes=("pocket_ccw",)) for m in ("model", "lstm", "hybrid")}
-    held_proc = {m: _median_rmse(rows, m, splits=("test_process",)) for m in ("model", "lstm", "hybrid")}
+                              and r["axis"] in "xy"])) for m in methods}
+    pocket = {m: _median_rmse(rows, m, processes=("pocket_ccw",)) for m in methods}
+    held_proc = {m: _median_rmse(rows, m, splits=("test_process",)) for m in methods}
     by_run: dict = {}
     for r in rows:
         if r["split"] == "test" and r["axis"] in "xy":
@@ -163,6 +166,8 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
         "median_rmse": med, "mean_rmse": mean, "pocket_rmse": pocket, "held_out_process": HELD_OUT_PROCESS,
         "held_out_process_median_rmse": held_proc, "hybrid_best_fraction": float(np.mean(wins)) if wins else None,
         "lstm_over_model_median": med["lstm"] / med["model"], "lstm_over_model_pocket": pocket["lstm"] / pocket["model"],
+        "lstm_over_paper_model_median": med["lstm"] / med["model_paper"],
+        "lstm_over_paper_model_pocket": pocket["lstm"] / pocket["model_paper"],
         "coverage_90": ev["coverage"], "train_seconds": train_lstm, "train_hybrid_seconds": train_hybrid,
         "train_peak_mb": peak_mb, "dataset_build_seconds": build_s, "dataset_bytes": index["bytes_on_disk"],
         "dataset_runs": len(runs), "held_out_runs": len(held),

@@ -47,8 +47,13 @@ def train(
     data: Annotated[Path, typer.Option("--data", help="Dataset folder (built, or your own .nc/.csv traces).")],
     out: Annotated[Path, typer.Option("--out", help="Model folder to write.")],
     axes: Annotated[Optional[Path], typer.Option(help="AXES.toml of the identified axes (hybrid only).")] = None,
-    epochs: Annotated[int, typer.Option(help="Maximum epochs per network.")] = 30,
+    epochs: Annotated[int, typer.Option(help="Maximum epochs per network (early stopping on validation).")] = 100,
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
+    harmonics: Annotated[int, typer.Option(help="Pole-pitch harmonics of the positions added to the inputs "
+                                                "(0: the paper's 14 inputs).")] = 3,
+    pole_pitch_mm: Annotated[float, typer.Option(help="Pole pitch of the linear motors [mm].")] = 23.0,
+    skip: Annotated[bool, typer.Option("--skip/--no-skip", help="Linear path from the inputs to the output "
+                                                                "beside the LSTM (--no-skip: the paper's network).")] = True,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the training record here.")] = None,
 ) -> None:
     """Train one network per force component (and save state_dicts + config)."""
@@ -69,7 +74,9 @@ def train(
 
         kwargs["model_based"] = read_axes_file(axes)
     runs = [rec for _, rec in load_dataset(data)]
-    est = (Hybrid if kind == "hybrid" else LSTM)(config=TrainConfig(epochs=epochs, seed=seed))
+    config = TrainConfig(epochs=epochs, seed=seed, position_harmonics=harmonics, pole_pitch=pole_pitch_mm * 1e-3,
+                         linear_skip=skip)
+    est = (Hybrid if kind == "hybrid" else LSTM)(config=config)
     est.fit(runs, progress=lambda line: err_console.print(line, highlight=False), **kwargs)
     est.save(out)
     hist = est.model.history

@@ -102,10 +102,10 @@ class TrainConfig:
     window: int = 250
     burn_in: int = 50
     batch: int = 128
-    windows_per_epoch: int = 2048
-    epochs: int = 30
-    patience: int = 5
-    lr: float = 3e-3
+    windows_per_epoch: int = 4096
+    epochs: int = 100
+    patience: int = 10
+    lr: float = 1e-3
     seed: int = 0
     mc_samples: int = 16
     coverage: float = 0.9
