@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 
 from drivesense.errors import ConfigError
 from drivesense.learn.dataset import RunSpec, allowed, build_dataset, load_dataset, plan_runs
+from drivesense.sim.machining import simulate_process
 
 torch = pytest.importorskip("torch")
 
@@ -20,13 +21,14 @@ from drivesense.estimate.hybrid import Hybrid  # noqa: E402
 from drivesense.estimate.lstm import LSTM  # noqa: E402
 from drivesense.learn.train import TrainConfig  # noqa: E402
 
-TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_in=30, mc_samples=4, seed=1)
+TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_in=30, mc_samples=4, seed=1,
+                  lr_decay=0.5, lr_patience=0)   # the schedule runs (decays after every epoch without improvement)
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("ds")
-    runs = plan_runs(n_train=4, n_val=2, n_test=1, n_held_out_process=1, seed=7)
+    runs = plan_runs(n_train=4, n_val=2, n_test=1, n_held_out_process=1, n_air=1, seed=7)
     index = build_dataset(folder, runs)
     return folder, index, [rec for _, rec in load_dataset(folder)]
 
@@ -41,11 +43,24 @@ def test_plan_respects_the_rule_and_the_split():
     held = {r.process for r in runs if r.split == "test_process"}
     assert len(held) == 1 and held.isdisjoint({r.process for r in runs if r.split != "test_process"})
     assert plan_runs() == runs  # seeded
+    air = [r for r in runs if r.air]
+    assert len(air) == 34 and {r.split for r in air} == {"train"}
+    assert {r.process for r in air}.isdisjoint(held) and len({r.name for r in runs}) == len(runs)
+
+
+def test_air_cuts_have_zero_force_and_the_cut_toolpath():
+    cut = simulate_process("pocket_ccw", 2e-3, 2e-3, 500 / 60e3, 3500, seed=3)
+    air = simulate_process("pocket_ccw", 2e-3, 2e-3, 500 / 60e3, 3500, seed=3, air=True)
+    for ax in "xyz":
+        assert np.all(air[f"force_{ax}"] == 0.0)
+        assert np.max(np.abs(air[f"{ax}_position"] - cut[f"{ax}_position"])) < 5e-5   # same path, no cutting load
+    assert air.meta["kind"] == "air" and air.meta["name"].startswith("air_")
+    assert np.ptp(air["x_current"]) < np.ptp(cut["x_current"])
 
 
 def test_dataset_is_cached_and_states_its_size(tiny):
     folder, index, runs = tiny
-    assert index["bytes_on_disk"] > 0 and len(runs) == 8
+    assert index["bytes_on_disk"] > 0 and len(runs) == 9
     mtimes = {p: p.stat().st_mtime_ns for p in (folder / "runs").iterdir()}
     build_dataset(folder, [RunSpec(**e["spec"]) for e in index["runs"]])
     assert {p: p.stat().st_mtime_ns for p in (folder / "runs").iterdir()} == mtimes
@@ -143,3 +158,7 @@ def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
     assert np.array_equal(LSTM.load(tmp_path / "old").estimate(rec)["force_y"], paper.estimate(rec)["force_y"])
     with pytest.raises(ConfigError, match="position_harmonics"):
         TrainConfig(position_harmonics=-1)
+    with pytest.raises(ConfigError, match="lr_decay"):
+        TrainConfig(lr_decay=0.0)
+    with pytest.raises(ConfigError, match="grad_clip"):
+        TrainConfig(grad_clip=-1.0)

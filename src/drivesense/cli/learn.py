@@ -19,20 +19,26 @@ dataset_app = typer.Typer(no_args_is_help=True, help="Training data for the lear
 @friendly
 def dataset_build(
     out: Annotated[Optional[Path], typer.Option("--out", help="Dataset folder (default: the user cache).")] = None,
+    air_cuts: Annotated[int, typer.Option(help="Air cuts (zero force) added to the training split; "
+                                               "0: the paper's cutting runs only.")] = 34,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the index summary here.")] = None,
 ) -> None:
-    """Simulate the third paper's process grid (seeded, cached; about 190 runs)."""
+    """Simulate the third paper's process grid (seeded, cached; about 190 cutting runs plus air cuts)."""
     from drivesense.bench.learn import default_dataset_dir
+    from drivesense.errors import ConfigError
     from drivesense.learn.dataset import build_dataset, plan_runs
 
     out = out or default_dataset_dir()
-    runs = plan_runs()
+    if air_cuts < 0:
+        raise ConfigError(f"'--air-cuts' must be >= 0, got {air_cuts}")
+    runs = plan_runs(n_air=air_cuts)
     with progress_bar() as bar:
         task = bar.add_task("simulate runs", total=len(runs))
         index = build_dataset(out, runs, progress=lambda name: bar.advance(task))
     splits: dict = {}
     for entry in index["runs"]:
-        splits[entry["spec"]["split"]] = splits.get(entry["spec"]["split"], 0) + 1
+        split = entry["spec"]["split"] + (" (air cuts)" if entry["spec"].get("air") else "")
+        splits[split] = splits.get(split, 0) + 1
     table = Table(title=f"dataset in {out}", show_header=False)
     table.add_row("runs", ", ".join(f"{k}: {v}" for k, v in splits.items()))
     table.add_row("held-out process type", index["held_out_process"])

@@ -7,8 +7,11 @@ rule (:func:`allowed`): the chip cross-section ``a_p * a_e`` may not exceed
 24 mm^2 (10 mm end mill in C45), and full-width grooves are limited to
 ``a_p <= 2 mm`` (chatter-prone full immersion).  The split is by process
 parameters: test runs use combinations that appear in no training run, and
-one process type is held out entirely.  Everything is seeded and cached on
-disk (one netCDF file per run plus ``index.json``).
+one process type is held out entirely.  Beyond the paper, the training split
+also holds air cuts (the same toolpaths with the tool clear of the part, so
+the force is zero): free labelled examples of friction, cogging and inertia,
+reversals included, which a real machine gives at no cost.  Everything is
+seeded and cached on disk (one netCDF file per run plus ``index.json``).
 """
 
 from __future__ import annotations
@@ -51,6 +54,9 @@ class RunSpec:
     split : str
         ``"train"``, ``"val"`` (early stopping), ``"test"`` (held-out parameters)
         or ``"test_process"`` (held-out process type).
+    air : bool
+        An air cut of the process (zero force; see
+        :func:`drivesense.sim.machining.simulate_process`).
     """
 
     process: str
@@ -60,11 +66,12 @@ class RunSpec:
     n: float
     seed: int
     split: str
+    air: bool = False
 
     @property
     def name(self) -> str:
         """File-friendly identifier."""
-        return (f"{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}_vf{self.v_f * 60e3:g}_n{self.n:g}"
+        return (f"{'air_' if self.air else ''}{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}_vf{self.v_f * 60e3:g}_n{self.n:g}"
                 f"_s{self.seed}")
 
 
@@ -76,7 +83,7 @@ def allowed(process: str, a_p: float, a_e: float) -> bool:
 
 
 def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_process: int = 8,
-              seed: int = 2021) -> list[RunSpec]:
+              n_air: int = 34, seed: int = 2021) -> list[RunSpec]:
     """Draw the runs: parameter combinations from the grid, process types in turn.
 
     Parameters
@@ -85,6 +92,9 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
         Runs per split; test combinations are disjoint from training ones.
     n_held_out_process : int
         Runs of :data:`HELD_OUT_PROCESS`.
+    n_air : int
+        Air cuts added to the training split (process types in turn, training
+        parameter combinations; never the held-out process type).
     seed : int
         Seed of the draw (and base of the simulation seeds).
 
@@ -127,6 +137,11 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
         while not allowed(HELD_OUT_PROCESS, a_p, a_e):
             a_p = a_p - 1e-3
         runs.append(RunSpec(HELD_OUT_PROCESS, a_p, a_e, v_f, n, seed + len(runs), "test_process"))
+    train = itertools.cycle([r for r in runs if r.split == "train"])
+    for j in range(n_air):
+        process = processes[j % len(processes)]
+        r = next(r for r in train if allowed(process, r.a_p, r.a_e))
+        runs.append(RunSpec(process, r.a_p, r.a_e, r.v_f, r.n, seed + len(runs), "train", air=True))
     return runs
 
 
@@ -173,7 +188,7 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     runs = list(runs) if runs is not None else plan_runs()
-    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed))
+    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed, air=s.air))
     index_path = out / "index.json"
     fingerprint = simulator_fingerprint()
     old = {}

@@ -93,6 +93,13 @@ class TrainConfig:
         Beyond the paper: a linear path from the inputs straight to the output
         beside the LSTM (the network learns what a linear map of the inputs
         cannot: friction, reversals, history); False gives the paper's network.
+    lr_decay : float
+        Factor on the learning rate after ``lr_patience`` epochs without a
+        validation improvement (1 keeps it constant).
+    lr_patience : int
+        Epochs without improvement before the learning rate is decayed.
+    grad_clip : float
+        Largest gradient norm per step (0: no clipping).
     """
 
     hidden: int = 20
@@ -112,6 +119,9 @@ class TrainConfig:
     position_harmonics: int = 3
     pole_pitch: float = 0.023
     linear_skip: bool = True
+    lr_decay: float = 1.0
+    lr_patience: int = 3
+    grad_clip: float = 1.0
 
     def __post_init__(self) -> None:
         if isinstance(self.position_harmonics, bool) or not isinstance(self.position_harmonics, int) \
@@ -119,6 +129,10 @@ class TrainConfig:
             raise ConfigError(f"'position_harmonics' must be an integer in 0..8, got {self.position_harmonics!r}")
         if not (isinstance(self.pole_pitch, (int, float)) and self.pole_pitch > 0):
             raise ConfigError(f"'pole_pitch' must be a length > 0 [m], got {self.pole_pitch!r}")
+        if not 0 < self.lr_decay <= 1:
+            raise ConfigError(f"'lr_decay' must be in (0, 1], got {self.lr_decay!r}")
+        if self.grad_clip < 0:
+            raise ConfigError(f"'grad_clip' must be >= 0 (0: no clipping), got {self.grad_clip!r}")
 
 
 _POOL = None
@@ -394,6 +408,8 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             net.head.bias.fill_(float(coef[-1]))
             net.head.weight.zero_()
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    schedule = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=config.lr_decay, patience=config.lr_patience,
+                                                          threshold=0.0) if config.lr_decay < 1 else None
     lengths = np.array([x.shape[0] for x in xs])
     ok = np.flatnonzero(lengths > config.window)
     if ok.size == 0:
@@ -421,9 +437,13 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             loss = ((pred[:, config.burn_in:] - yb[:, config.burn_in:]) ** 2).mean()
             opt.zero_grad()
             loss.backward()
+            if config.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(net.parameters(), config.grad_clip)
             opt.step()
             losses.append(loss.item())
         v = val_loss()
+        if schedule is not None:
+            schedule.step(v)
         hist["train_loss"].append(float(np.mean(losses)))
         hist["val_loss"].append(float(v))
         hist["epochs"] = epoch + 1

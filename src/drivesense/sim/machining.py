@@ -347,7 +347,7 @@ def _record(settings, physics, t, pos, vel, acc, force, load, seed, meta, spindl
 
 
 def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float, *, seed: int = 0,
-                     ideal: bool = False, settings: ProcessSettings | None = None) -> Recording:
+                     ideal: bool = False, settings: ProcessSettings | None = None, air: bool = False) -> Recording:
     """Simulate one milling process on the 3-axis linear-motor machine: the NC trace at 250 Hz.
 
     Parameters
@@ -368,6 +368,10 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
         Data from exactly the ModelBased model (tests only).
     settings : ProcessSettings, optional
         Machine, controller, tool and geometry (default: the preset, full physics).
+    air : bool
+        An air cut: the same toolpath, spindle running, tool clear of the
+        part, so the process force is zero (labelled data for free: friction,
+        cogging and inertia at the process's moves and reversals).
 
     Returns
     -------
@@ -390,6 +394,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     phase = rng.uniform(0, 2 * math.pi)
     t, pos, vel, acc, force, torque, window = _process(process, a_p, a_e, v_f, settings,
                                                        lambda tt: omega * tt + phase, rng)
+    if air:
+        force, torque = np.zeros_like(force), np.zeros_like(torque)
     physics = settings.physics.ideal() if ideal else settings.physics.varied(rng)
     if ideal:
         settings = _ideal_settings(settings, physics)
@@ -398,8 +404,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     moving = [a for i, a in enumerate(AXES) if np.ptp(pos[i]) > 1e-4]
     if process.startswith("groove_"):
         a_e = settings.tool.diameter          # a slot: full immersion whatever a_e was given
-    meta = {"name": f"{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}", "process": process,
-            "kind": "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f, "n_rpm": n, "seed": int(seed),
+    meta = {"name": f"{'air_' if air else ''}{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}",
+            "process": process, "kind": "air" if air else "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f, "n_rpm": n, "seed": int(seed),
             "moving_axes": moving, "score_window": [float(window[0]), float(window[1])],
             "provenance": [f"drivesense.sim.machining {process} seed {seed}"]}
     return _record(settings, physics, t, pos, vel, acc, force, load, int(rng.integers(2 ** 31)), meta,
