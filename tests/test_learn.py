@@ -133,6 +133,20 @@ def test_missing_torch_gives_a_clear_message(monkeypatch, tiny):
         LSTM(config=TINY).fit(tiny[2])
 
 
+def test_presliding_features_turn_over_at_reversals_and_stream():
+    """The Dahl state of each position saturates at the direction of motion and turns over within ~3 x_pre."""
+    from drivesense.learn.features import presliding_features
+
+    s = np.concatenate([np.linspace(0, 1e-3, 101), np.linspace(1e-3, 0.5e-3, 101)[1:]])   # 10 um up, 5 um back
+    f = presliding_features([s, -s, np.zeros_like(s)], 10e-6)
+    assert f.shape == (s.size, 3) and f.dtype == np.float32
+    assert f[99, 0] > 0.999 and f[99, 1] < -0.999 and np.all(f[:, 2] == 0)      # standing axis: no friction held
+    assert f[100 + 8, 0] == pytest.approx(-1 + 2 * np.exp(-4.0), abs=1e-6)     # 40 um after the reversal
+    state: dict = {}
+    parts = [presliding_features([p, -p, 0 * p], 10e-6, state) for p in np.array_split(s, 7)]
+    np.testing.assert_array_equal(np.vstack(parts), f)
+
+
 def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
     """sin/cos of the pole-pitch harmonics join the inputs; 0 harmonics (or an older saved model) is the paper's 14."""
     from drivesense.learn.features import position_features
@@ -142,16 +156,17 @@ def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
     assert f.shape == (4, 12) and f.dtype == np.float32
     np.testing.assert_allclose(f[:, 0], [0, 1, 0, 0], atol=1e-6)       # sin(2 pi s / p)
     np.testing.assert_allclose(f[:, 3], [1, -1, 1, 1], atol=1e-6)      # cos(4 pi s / p)
-    assert trained.model.weights["force_x"].in_dims[0] == 14 + 18
-    assert trained.model.weights["force_x"].skip_w.shape == (32,)            # the linear skip, saved and loaded
+    assert trained.model.weights["force_x"].in_dims[0] == 14 + 18 + 3          # + the presliding states
+    assert trained.model.weights["force_x"].skip_w.shape == (35,)            # the linear skip, saved and loaded
     _, _, runs = tiny
     import dataclasses
 
-    paper = LSTM(config=dataclasses.replace(TINY, position_harmonics=0, linear_skip=False, epochs=1)).fit(runs)
+    paper = LSTM(config=dataclasses.replace(TINY, position_harmonics=0, linear_skip=False, presliding_length=0.0,
+                                            epochs=1)).fit(runs)
     assert paper.model.weights["force_x"].in_dims[0] == 14 and paper.model.weights["force_x"].skip_w is None
     paper.save(tmp_path / "old")
     cfg = json.loads((tmp_path / "old" / "config.json").read_text())
-    for key in ("position_harmonics", "pole_pitch", "linear_skip"):            # as saved before these existed
+    for key in ("position_harmonics", "pole_pitch", "linear_skip", "presliding_length"):  # saved before these existed
         del cfg["config"][key]
     (tmp_path / "old" / "config.json").write_text(json.dumps(cfg))
     rec = runs[0]

@@ -149,6 +149,7 @@ class LearnedStream:
         self.latency_s = float(latency_s)
         self.states = {ch: LSTMState(w) for ch, w in model.weights.items()}
         self.base_state: dict = {}     # the hybrid's ModelBased presliding state
+        self.input_state: dict = {}    # the presliding states among the inputs
 
     def push(self, chunk: Recording | Mapping[str, np.ndarray]):
         """Process the next samples; returns a dict of force arrays [N] (a Recording for a Recording)."""
@@ -161,7 +162,7 @@ class LearnedStream:
                 raise MissingChannelError(f"stream chunk lacks channel(s) {', '.join(missing)}")
             arrays = chunk
         n = len(arrays[INPUT_CHANNELS[0]])
-        x_all = self.model.scaled_inputs(arrays)
+        x_all = self.model.scaled_inputs(arrays, self.input_state)
         bases = {ch: np.zeros(n) for ch in TARGET_CHANNELS}
         if self.model.kind == "hybrid":
             from drivesense.estimate.model_based import ModelBased

@@ -20,8 +20,7 @@ from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.recording import Recording
 
 __all__ = ["INPUT_CHANNELS", "TARGET_CHANNELS", "Scaler", "TargetScaler", "input_matrix", "filtered_target",
-           "position_features",
-           "resample_to"]
+           "position_features", "presliding_features", "resample_to"]
 
 #: NC channels the networks read, in order.
 INPUT_CHANNELS = tuple(f"{ax}_{q}" for q in ("position", "velocity", "acceleration", "current")
@@ -129,6 +128,41 @@ def position_features(positions, pole_pitch: float, harmonics: int) -> np.ndarra
             cols += [np.sin(h * phase), np.cos(h * phase)]
     if not cols:
         return np.zeros((len(np.asarray(positions[0])) if len(positions) else 0, 0), dtype=np.float32)
+    return np.column_stack(cols).astype(np.float32)
+
+
+def presliding_features(positions, x_pre: float, state: dict | None = None) -> np.ndarray:
+    """Dahl presliding state of each axis from its position, in [-1, 1] (float32).
+
+    At a reversal the guides' friction turns over within a few micrometres of
+    travel, a sample or two at 250 Hz: the state follows the position there,
+    where the sampled velocity only changes sign (see
+    :func:`drivesense.machine.linear_motor.presliding_direction`).
+
+    Parameters
+    ----------
+    positions : sequence of array_like
+        Axis positions [m] (x, y, z), equally long.
+    x_pre : float
+        Presliding distance [m] (> 0).
+    state : dict, optional
+        ``{axis index: (last position [m], state [-])}`` carried between
+        stream chunks, updated in place; None: a fresh start.
+
+    Returns
+    -------
+    ndarray, shape (n_samples, len(positions))
+    """
+    from drivesense.machine.linear_motor import presliding_direction
+
+    cols = []
+    for i, s in enumerate(positions):
+        s = np.asarray(s, float)
+        prev, d0 = state.get(i, (None, 0.0)) if state is not None else (None, 0.0)
+        d = presliding_direction(s, x_pre, previous_position=prev, direction=d0) if s.size else np.zeros(0)
+        if state is not None and s.size:
+            state[i] = (float(s[-1]), float(d[-1]))
+        cols.append(d)
     return np.column_stack(cols).astype(np.float32)
 
 

@@ -31,8 +31,7 @@ import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, filtered_target,
-                                      position_features,
-                                       input_matrix, resample_to)
+                                      input_matrix, position_features, presliding_features, resample_to)
 from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm
 from drivesense.recording import Recording
 
@@ -93,6 +92,12 @@ class TrainConfig:
         Beyond the paper: a linear path from the inputs straight to the output
         beside the LSTM (the network learns what a linear map of the inputs
         cannot: friction, reversals, history); False gives the paper's network.
+    presliding_length : float
+        Beyond the paper: the Dahl presliding state of each axis, computed
+        from its position over this distance [m] (a nominal guide value, not an
+        identified one), is added to the inputs: it turns over within a few
+        micrometres at a reversal, faster than 250 Hz velocity can show;
+        0 leaves it out.
     lr_decay : float
         Factor on the learning rate after ``lr_patience`` epochs without a
         validation improvement (1 keeps it constant).
@@ -119,6 +124,7 @@ class TrainConfig:
     position_harmonics: int = 3
     pole_pitch: float = 0.023
     linear_skip: bool = True
+    presliding_length: float = 10e-6
     lr_decay: float = 1.0
     lr_patience: int = 3
     grad_clip: float = 1.0
@@ -129,6 +135,8 @@ class TrainConfig:
             raise ConfigError(f"'position_harmonics' must be an integer in 0..8, got {self.position_harmonics!r}")
         if not (isinstance(self.pole_pitch, (int, float)) and self.pole_pitch > 0):
             raise ConfigError(f"'pole_pitch' must be a length > 0 [m], got {self.pole_pitch!r}")
+        if not (isinstance(self.presliding_length, (int, float)) and self.presliding_length >= 0):
+            raise ConfigError(f"'presliding_length' must be a length >= 0 [m], got {self.presliding_length!r}")
         if not 0 < self.lr_decay <= 1:
             raise ConfigError(f"'lr_decay' must be in (0, 1], got {self.lr_decay!r}")
         if self.grad_clip < 0:
@@ -185,14 +193,20 @@ class LearnedModel:
     model_based: object = None
 
     # ------------------------------------------------------------- features
-    def scaled_inputs(self, arrays) -> np.ndarray:
+    def scaled_inputs(self, arrays, state: dict | None = None) -> np.ndarray:
         """Network inputs shared by the three networks from ``{channel: samples}`` (SI): scaled NC
-        inputs, then the pole-pitch harmonics of the positions (float32)."""
+        inputs, the pole-pitch harmonics of the positions, then their presliding states (float32).
+
+        ``state`` carries the presliding states between stream chunks (updated
+        in place; None: a fresh start).
+        """
         x = self.input_scaler.transform(np.column_stack([np.asarray(arrays[c], float) for c in INPUT_CHANNELS]))
+        pos = [arrays[f"{ax}_position"] for ax in ("x", "y", "z")]
         k = self.config.position_harmonics
         if k:
-            pos = [arrays[f"{ax}_position"] for ax in ("x", "y", "z")]
             x = np.hstack([x, position_features(pos, self.config.pole_pitch, k)])
+        if self.config.presliding_length > 0:
+            x = np.hstack([x, presliding_features(pos, self.config.presliding_length, state)])
         return x
 
     def inputs(self, recording: Recording) -> tuple[np.ndarray, dict]:
@@ -268,6 +282,7 @@ class LearnedModel:
         settings = dict(cfg["config"])
         settings.setdefault("position_harmonics", 0)     # models saved before these had the paper's network
         settings.setdefault("linear_skip", False)
+        settings.setdefault("presliding_length", 0.0)
         try:
             config = TrainConfig(**settings)
         except TypeError as exc:
