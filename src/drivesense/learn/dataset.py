@@ -71,8 +71,8 @@ class RunSpec:
     @property
     def name(self) -> str:
         """File-friendly identifier."""
-        return (f"{'air_' if self.air else ''}{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}_vf{self.v_f * 60e3:g}_n{self.n:g}"
-                f"_s{self.seed}")
+        return (f"{'air_' if self.air else ''}{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}"
+                f"_vf{self.v_f * 60e3:g}_n{self.n:g}_s{self.seed}")
 
 
 def allowed(process: str, a_p: float, a_e: float) -> bool:
@@ -188,7 +188,8 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     runs = list(runs) if runs is not None else plan_runs()
-    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed, air=s.air))
+    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed,
+                                                       air=s.air))
     index_path = out / "index.json"
     fingerprint = simulator_fingerprint()
     old = {}

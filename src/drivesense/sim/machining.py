@@ -405,7 +405,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     if process.startswith("groove_"):
         a_e = settings.tool.diameter          # a slot: full immersion whatever a_e was given
     meta = {"name": f"{'air_' if air else ''}{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}",
-            "process": process, "kind": "air" if air else "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f, "n_rpm": n, "seed": int(seed),
+            "process": process, "kind": "air" if air else "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f,
+            "n_rpm": n, "seed": int(seed),
             "moving_axes": moving, "score_window": [float(window[0]), float(window[1])],
             "provenance": [f"drivesense.sim.machining {process} seed {seed}"]}
     return _record(settings, physics, t, pos, vel, acc, force, load, int(rng.integers(2 ** 31)), meta,
