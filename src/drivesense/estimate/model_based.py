@@ -40,7 +40,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
-from drivesense.machine.linear_motor import AXES, ThreeAxisModel, presliding_direction
+from drivesense.machine.linear_motor import AXES, ThreeAxisModel, carried_presliding_direction
 from drivesense.recording import Recording
 
 __all__ = ["ModelBased", "ModelBasedStream", "MODEL_INPUTS"]
@@ -148,10 +148,7 @@ class ModelBased:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)
             direction = None
             if self.uses_presliding(a) and len(s):
-                prev, d0 = state.get(a, (None, 0.0)) if state is not None else (None, 0.0)
-                direction = presliding_direction(s, model.axis(a).x_pre, previous_position=prev, direction=d0)
-                if state is not None:
-                    state[a] = (float(s[-1]), float(direction[-1]))
+                direction = carried_presliding_direction(s, model.axis(a).x_pre, state, a)
             out[f"force_{a}"] = model.process_force(a, i, s, v, acc, v_eps=self.v_eps, direction=direction)
         return out
 

@@ -137,10 +137,17 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
         while not allowed(HELD_OUT_PROCESS, a_p, a_e):
             a_p = a_p - 1e-3
         runs.append(RunSpec(HELD_OUT_PROCESS, a_p, a_e, v_f, n, seed + len(runs), "test_process"))
-    train = itertools.cycle([r for r in runs if r.split == "train"])
+    train = [r for r in runs if r.split == "train"]
+    k = 0
     for j in range(n_air):
         process = processes[j % len(processes)]
-        r = next(r for r in train if allowed(process, r.a_p, r.a_e))
+        for _ in range(len(train)):      # the next training combination, in turn, that the process type allows
+            r = train[k % len(train)]
+            k += 1
+            if allowed(process, r.a_p, r.a_e):
+                break
+        else:
+            raise ConfigError(f"no training combination suits an air cut of {process!r}; add training runs")
         runs.append(RunSpec(process, r.a_p, r.a_e, r.v_f, r.n, seed + len(runs), "train", air=True))
     return runs
 

@@ -153,17 +153,10 @@ def presliding_features(positions, x_pre: float, state: dict | None = None) -> n
     -------
     ndarray, shape (n_samples, len(positions))
     """
-    from drivesense.machine.linear_motor import presliding_direction
+    from drivesense.machine.linear_motor import carried_presliding_direction
 
-    cols = []
-    for i, s in enumerate(positions):
-        s = np.asarray(s, float)
-        prev, d0 = state.get(i, (None, 0.0)) if state is not None else (None, 0.0)
-        d = presliding_direction(s, x_pre, previous_position=prev, direction=d0) if s.size else np.zeros(0)
-        if state is not None and s.size:
-            state[i] = (float(s[-1]), float(d[-1]))
-        cols.append(d)
-    return np.column_stack(cols).astype(np.float32)
+    return np.column_stack([carried_presliding_direction(s, x_pre, state, i)
+                            for i, s in enumerate(positions)]).astype(np.float32)
 
 
 def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 120.0, order: int = 4,

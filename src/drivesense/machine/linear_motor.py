@@ -46,7 +46,7 @@ from drivesense.machine.friction import LuGreFriction, Ripple
 
 __all__ = ["LinearMotorAxis", "ThreeAxisModel", "LinearAxisPhysics", "LinearMachinePhysics", "AXES",
            "cogging_table_force", "harmonic_cogging_table", "linear_machine_physics", "linear_machine_model",
-           "presliding_direction"]
+           "presliding_direction", "carried_presliding_direction"]
 
 #: Axis letters of the 3-axis machine, in order.
 AXES = ("x", "y", "z")
@@ -132,6 +132,33 @@ def presliding_direction(position, x_pre: float, *, previous_position: float | N
         return s.copy()
     prev = float(s[0]) if previous_position is None else float(previous_position)
     return _dahl_direction(s, float(x_pre), prev, float(direction))
+
+
+def carried_presliding_direction(position, x_pre: float, state: dict | None, key) -> np.ndarray:
+    """:func:`presliding_direction` continued across stream chunks.
+
+    Parameters
+    ----------
+    position : array_like
+        Axis position of this chunk [m], 1-D.
+    x_pre : float
+        Presliding distance [m] (> 0).
+    state : dict or None
+        ``{key: (last position [m], direction [-])}`` from the previous chunk,
+        updated in place; None: a fresh start, nothing kept.
+    key : hashable
+        This axis's entry in ``state``.
+
+    Returns
+    -------
+    ndarray
+        ``d`` per sample.
+    """
+    prev, d0 = state.get(key, (None, 0.0)) if state is not None else (None, 0.0)
+    d = presliding_direction(position, x_pre, previous_position=prev, direction=d0)
+    if state is not None and d.size:
+        state[key] = (float(np.ravel(position)[-1]), float(d[-1]))
+    return d
 
 
 def harmonic_cogging_table(harmonics, n: int = 64) -> np.ndarray:

@@ -394,7 +394,7 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     phase = rng.uniform(0, 2 * math.pi)
     t, pos, vel, acc, force, torque, window = _process(process, a_p, a_e, v_f, settings,
                                                        lambda tt: omega * tt + phase, rng)
-    if air:
+    if air:     # computed and dropped, so that the random draws (noise, variation) match the cut's
         force, torque = np.zeros_like(force), np.zeros_like(torque)
     physics = settings.physics.ideal() if ideal else settings.physics.varied(rng)
     if ideal:
