@@ -50,8 +50,8 @@ def _csv_with(path: Path, text: str) -> Path:
 
 
 def _lines_from(work: Path, n: int = 400) -> list[str]:
-    lines = (work / "cross.csv").read_text().splitlines()
-    return lines[: n + 1]
+    lines = [line for line in (work / "cross.csv").read_text().splitlines() if not line.startswith("#")]
+    return lines[: n + 1]     # header and n rows, without the metadata line
 
 
 # --------------------------------------------------------------------- happy
@@ -62,8 +62,8 @@ def test_estimate_csv_in_user_units_with_tare(work):
     assert res.exit_code == 0, res.output
     force = read_csv(out)
     assert force.channels == ["force_x"] and force.units("force_x") == "N"
-    header = out.read_text().splitlines()[0]
-    assert header.startswith("time [s]") and "force_x [N]" in header
+    meta_line, header = out.read_text().splitlines()[:2]
+    assert meta_line.startswith("# meta: ") and header.startswith("time [s]") and "force_x [N]" in header
     info = json.loads((work / "est.json").read_text())
     assert info["method"] == "vibration"
     assert info["latency_s"] == pytest.approx(0.3e-3)

@@ -229,6 +229,24 @@ def test_read_csv_errors(tmp_path, text, error, pattern):
     assert "trace.csv" in str(err.value)
 
 
+def test_csv_carries_metadata(tmp_path):
+    rec = make_rec(n=50, fs=1000.0, name="meta").with_meta(nc_delay_s=0.004, score_window=[0.01, 0.04],
+                                                               ratio=np.float32(1.5), label="µm, ä")
+    path = write_csv(rec, tmp_path / "m.csv")
+    first = path.read_text().splitlines()[0]
+    assert first.startswith("# meta: {") and "provenance" not in first
+    back = read_csv(path)
+    assert back.meta["nc_delay_s"] == 0.004 and back.meta["score_window"] == [0.01, 0.04]
+    assert back.meta["name"] == "meta" and back.meta["ratio"] == 1.5 and back.meta["label"] == "µm, ä"
+    assert read_csv(path, meta={"nc_delay_s": 0.0}).meta["nc_delay_s"] == 0.0     # the caller's meta wins
+    (tmp_path / "bad.csv").write_text("# meta: {nope\ntime [s],force_x [N]\n0,1\n0.001,1\n")
+    with pytest.raises(InvalidSignalError, match=r"bad.csv, line 1: the '# meta:' line is not valid JSON"):
+        read_csv(tmp_path / "bad.csv")
+    (tmp_path / "list.csv").write_text("# meta: [1]\ntime [s],force_x [N]\n0,1\n0.001,1\n")
+    with pytest.raises(InvalidSignalError, match="must hold a JSON object"):
+        read_csv(tmp_path / "list.csv")
+
+
 def test_read_csv_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError):
         read_csv(tmp_path / "nope.csv")
@@ -241,7 +259,7 @@ def test_write_read_csv_round_trip(tmp_path):
     for c in rec.channels:
         np.testing.assert_array_equal(exact[c], rec[c])
     out = rec.to_csv(tmp_path / "user.csv", units={"time": "ms", "x_table_position": "mm"})
-    assert out.read_text().splitlines()[0] == "time [ms],x_table_position [mm],x_current_ref [A]"
+    assert out.read_text().splitlines()[1] == "time [ms],x_table_position [mm],x_current_ref [A]"
     back = Recording.from_csv(out)
     assert back.fs == rec.fs and back.t0 == rec.t0
     np.testing.assert_allclose(back["x_table_position"], rec["x_table_position"], rtol=1e-14)

@@ -11,6 +11,9 @@ Format
   within ``rel_tol``.  Without one, ``fs`` must be given.
 - Bare axis channel names (``current_ref``, ``motor_angle``,
   ``table_position``...) get the prefix ``{axis}_``.
+- A comment line ``# meta: {...}`` (JSON object) before the header carries the
+  Recording's metadata (``name``, ``nc_delay_s``, ``score_window``...);
+  :func:`write_csv` writes one, :func:`read_csv` reads it back.
 
 Values are converted to SI; the provenance lists every conversion and rename.
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import csv as _csv
 import errno
+import json
 import re
 import warnings
 from collections.abc import Mapping, Sequence
@@ -29,6 +33,7 @@ import numpy as np
 
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
+from ..metadata import meta_to_json
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..recording import Recording
@@ -50,16 +55,32 @@ def _decode(raw: bytes) -> str:
         return raw.decode("latin-1")
 
 
-def _find_header(path: Path) -> tuple[int, str]:
-    """(1-based line number, text) of the header: the first non-blank, non-comment line."""
+_META_PREFIX = "# meta:"
+
+
+def _find_header(path: Path) -> tuple[int, str, dict]:
+    """(1-based line number, text) of the header -- the first non-blank, non-comment line --
+    and the metadata of the ``# meta: {...}`` comment lines before it."""
     if not path.is_file():
         raise FileNotFoundError(errno.ENOENT, "CSV file not found", str(path))
+    meta: dict = {}
     with open(path, "rb") as fh:
         for lineno, raw in enumerate(fh, start=1):
             line = _decode(raw).rstrip("\r\n")
             if _is_data(line):
-                return lineno, line
+                return lineno, line, meta
+            if line.startswith(_META_PREFIX):
+                try:
+                    found = json.loads(line[len(_META_PREFIX):])
+                except json.JSONDecodeError as exc:
+                    raise InvalidSignalError(f"{path.name}, line {lineno}: the '# meta:' line is not "
+                                             f"valid JSON ({exc.msg})") from None
+                if not isinstance(found, dict):
+                    raise InvalidSignalError(f"{path.name}, line {lineno}: the '# meta:' line must hold a "
+                                             f"JSON object, got {type(found).__name__}")
+                meta.update(found)
     raise InvalidSignalError(f"{path.name}: empty file (no header line)")
+
 
 
 def _is_data(line: str) -> bool:
@@ -121,7 +142,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         Allowed step jitter of the time column, see
         :func:`drivesense.recording.validate_timebase`.
     meta : mapping, optional
-        Metadata for the Recording; ``name`` defaults to the file stem.
+        Metadata for the Recording, over the file's ``# meta:`` line; ``name``
+        defaults to the file stem.
 
     Returns
     -------
@@ -151,7 +173,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     if axis not in _AXES:
         raise ConfigError(f"axis must be one of {_AXES}, got {axis!r}")
     mapping = dict(mapping or {})
-    header_lineno, header_line = _find_header(path)
+    header_lineno, header_line, file_meta = _find_header(path)
     delim = max([",", ";", "\t"], key=header_line.count)
     header = [c.strip() for c in next(_csv.reader([header_line], delimiter=delim))]
 
@@ -237,7 +259,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
 
     parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
             ([f"converted {', '.join(converted)}"] if converted else []) + [timebase]
-    meta = {"name": path.stem, **dict(meta or {})}
+    meta = {"name": path.stem, **file_meta, **dict(meta or {})}
     rec = Recording.from_arrays(channels, fs=fs, t0=t0, units=si_units, meta=meta)
     return rec.with_provenance(f"read_csv {path.name}: " + "; ".join(parts))
 
@@ -280,7 +302,8 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
     Notes
     -----
     Values are written with :func:`repr` (shortest text that reads back to the
-    same float64), so SI output reads back bit-exactly.  Metadata is not written.
+    same float64), so SI output reads back bit-exactly.  The metadata is written
+    on a ``# meta:`` comment line (JSON; provenance is not).
     """
     from . import atomic_output
 
@@ -303,6 +326,9 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
     text_cols = [map(repr, c.tolist()) for c in cols]
     with atomic_output(path) as tmp:
         with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            meta = {k: v for k, v in rec.meta.items() if k != "provenance"}   # reading adds its own
+            if meta:
+                fh.write(f"{_META_PREFIX} {meta_to_json(meta)}\n")
             fh.write(",".join(head) + "\n")
             fh.write("\n".join(map(",".join, zip(*text_cols))))
             fh.write("\n")
