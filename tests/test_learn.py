@@ -108,6 +108,7 @@ def test_hybrid_needs_the_model_and_runs(tiny):
     hyb = Hybrid(config=TINY).fit(runs, model_based=linear_machine_model())
     out = hyb.estimate(runs[0])
     assert np.all(np.isfinite(out["force_y"]))
+    assert hyb.model.config.skip_taps == 8 and hyb.model.weights["force_y"].taps == 8   # the hybrid's default
 
 
 def test_cli_train_and_estimate(tiny, tmp_path):
@@ -157,7 +158,8 @@ def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
     np.testing.assert_allclose(f[:, 0], [0, 1, 0, 0], atol=1e-6)       # sin(2 pi s / p)
     np.testing.assert_allclose(f[:, 3], [1, -1, 1, 1], atol=1e-6)      # cos(4 pi s / p)
     assert trained.model.weights["force_x"].in_dims[0] == 14 + 18 + 3          # + the presliding states
-    assert trained.model.weights["force_x"].skip_w.shape == (35,)            # the linear skip, saved and loaded
+    assert trained.model.config.skip_taps == 4                                 # the LSTM's default FIR skip
+    assert trained.model.weights["force_x"].skip_w.shape == (35, 4)           # saved and loaded
     _, _, runs = tiny
     import dataclasses
 
@@ -166,7 +168,7 @@ def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
     assert paper.model.weights["force_x"].in_dims[0] == 14 and paper.model.weights["force_x"].skip_w is None
     paper.save(tmp_path / "old")
     cfg = json.loads((tmp_path / "old" / "config.json").read_text())
-    for key in ("position_harmonics", "pole_pitch", "linear_skip", "presliding_length"):  # saved before these existed
+    for key in ("position_harmonics", "pole_pitch", "linear_skip", "presliding_length", "skip_taps"):  # saved before
         del cfg["config"][key]
     (tmp_path / "old" / "config.json").write_text(json.dumps(cfg))
     rec = runs[0]
@@ -177,3 +179,22 @@ def test_pole_pitch_features_and_models_without_them(trained, tiny, tmp_path):
         TrainConfig(lr_decay=0.0)
     with pytest.raises(ConfigError, match="grad_clip"):
         TrainConfig(grad_clip=-1.0)
+    with pytest.raises(ConfigError, match="skip_taps"):
+        TrainConfig(skip_taps=0)
+    with pytest.raises(ConfigError, match="skip_lr_factor"):
+        TrainConfig(skip_lr_factor=2.0)
+
+
+def test_learn_bench_scoring_on_held_out_runs(trained, tiny):
+    """evaluate_methods scores per run and axis against the filtered reference; wins count per run."""
+    from drivesense.bench.learn import _hybrid_wins, evaluate_methods
+
+    _, _, runs = tiny
+    held = [r for r in runs if r.meta["split"] in ("test", "test_process")]
+    ev = evaluate_methods({"lstm": trained}, held)
+    assert len(ev["rows"]) == 3 * len(held) and 0.5 < ev["coverage"] <= 1.0
+    assert all(r["rmse_n"] > 0 and r["max_abs_force_n"] > 0 for r in ev["rows"] if r["axis"] != "z")
+    rows = [{"split": "test", "axis": ax, "run": run, "method": m, "rmse_n": v}
+            for run, vals in (("a", (1.0, 2.0, 3.0)), ("b", (3.0, 2.0, 1.0))) for ax in "xy"
+            for m, v in zip(("hybrid", "lstm", "model"), vals)]
+    assert _hybrid_wins(rows, "test") == [True, False] and _hybrid_wins(rows, "test_process") == []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivesense.learn.features import INPUT_CHANNELS, Scaler, TargetScaler
-from drivesense.learn.kernel import LSTMState, LSTMWeights, _tanh, run_lstm
+from drivesense.learn.kernel import LSTMState, LSTMWeights, _tanh, run_lstm, skip_to_torch
 
 
 def test_input_scaler_maps_training_range():
@@ -109,3 +109,27 @@ def test_kernel_with_a_linear_skip_matches_pytorch():
     np.testing.assert_allclose(run_lstm(w, LSTMState(w), x), ref, atol=2e-5)
     no_skip = LSTMWeights.from_state_dict({k: v for k, v in state.items() if k != "skip.weight"}, 3)
     assert not np.allclose(run_lstm(no_skip, LSTMState(no_skip), x), ref, atol=1e-3)
+
+
+def test_kernel_with_a_causal_fir_skip_matches_pytorch_and_streams():
+    """A multi-tap skip is a causal Conv1d over the inputs (zeros before the start); chunks carry its last inputs."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(2)
+    state = _random_weights(seed=4)
+    conv = torch.nn.Conv1d(14, 1, 5, bias=False).double()
+    state["skip.weight"] = conv.weight
+    w = LSTMWeights.from_state_dict(state, 3)
+    assert w.taps == 5 and w.skip_w.shape == (14, 5)
+    np.testing.assert_array_equal(skip_to_torch(w.skip_w), conv.weight.detach().numpy())   # round trip
+    x = np.random.default_rng(5).uniform(-1, 1, (400, 14))
+    no_skip = LSTMWeights.from_state_dict({k: v for k, v in state.items() if k != "skip.weight"}, 3)
+    with torch.no_grad():
+        fir = conv(torch.nn.functional.pad(torch.from_numpy(x).T[None], (4, 0)))[0, 0].numpy()
+    batch = run_lstm(w, LSTMState(w), x)
+    np.testing.assert_allclose(batch - run_lstm(no_skip, LSTMState(no_skip), x), fir, atol=2e-5)
+    st, parts, i = LSTMState(w), [], 0
+    for size in (0, 1, 2, 3, 7, 1, 50, 0, 4):           # chunks shorter than the filter included
+        parts.append(run_lstm(w, st, x[i:i + size]))
+        i += size
+    parts.append(run_lstm(w, st, x[i:]))
+    assert np.array_equal(np.concatenate(parts), batch) and st.tail.shape == (4, 14)

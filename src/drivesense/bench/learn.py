@@ -85,6 +85,15 @@ def _median_rmse(rows, method, splits=("test",), processes=None, axes="xy"):
     return float(np.median(vals)) if vals else float("nan")
 
 
+def _hybrid_wins(rows, split: str) -> list[bool]:
+    """Per run of ``split``: is the hybrid's mean x/y RMSE below both the LSTM's and the model's?"""
+    by_run: dict = {}
+    for r in rows:
+        if r["split"] == split and r["axis"] in "xy":
+            by_run.setdefault(r["run"], {}).setdefault(r["method"], []).append(r["rmse_n"])
+    return [np.mean(v["hybrid"]) < min(np.mean(v["lstm"]), np.mean(v["model"])) for v in by_run.values()]
+
+
 def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=None, config=None,
                     figures_dir=None) -> dict:
     """Build the dataset, train LSTM and Hybrid, and compare with ModelBased on held-out runs.
@@ -155,16 +164,13 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
                               and r["axis"] in "xy"])) for m in methods}
     pocket = {m: _median_rmse(rows, m, processes=("pocket_ccw",)) for m in methods}
     held_proc = {m: _median_rmse(rows, m, splits=("test_process",)) for m in methods}
-    by_run: dict = {}
-    for r in rows:
-        if r["split"] == "test" and r["axis"] in "xy":
-            by_run.setdefault(r["run"], {}).setdefault(r["method"], []).append(r["rmse_n"])
-    wins = [np.mean(v["hybrid"]) < min(np.mean(v["lstm"]), np.mean(v["model"])) for v in by_run.values()]
+    wins, wins_process = _hybrid_wins(rows, "test"), _hybrid_wins(rows, "test_process")
     figures = _figures(Path(figures_dir or data_dir.parent / "figures"), held, rows,
                        {"model": ModelBased(axes), "lstm": lstm, "hybrid": hybrid})
     result = {
         "median_rmse": med, "mean_rmse": mean, "pocket_rmse": pocket, "held_out_process": HELD_OUT_PROCESS,
         "held_out_process_median_rmse": held_proc, "hybrid_best_fraction": float(np.mean(wins)) if wins else None,
+        "hybrid_best_fraction_held_out_process": float(np.mean(wins_process)) if wins_process else None,
         "lstm_over_model_median": med["lstm"] / med["model"], "lstm_over_model_pocket": pocket["lstm"] / pocket["model"],
         "lstm_over_paper_model_median": med["lstm"] / med["model_paper"],
         "lstm_over_paper_model_pocket": pocket["lstm"] / pocket["model_paper"],

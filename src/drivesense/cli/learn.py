@@ -60,6 +60,9 @@ def train(
     pole_pitch_mm: Annotated[float, typer.Option(help="Pole pitch of the linear motors [mm].")] = 23.0,
     skip: Annotated[bool, typer.Option("--skip/--no-skip", help="Linear path from the inputs to the output "
                                                                 "beside the LSTM (--no-skip: the paper's network).")] = True,
+    skip_taps: Annotated[Optional[int], typer.Option(help="Samples the linear path looks back over (a causal FIR "
+                                                          "filter; 1: instantaneous; default 4 for lstm, 8 for "
+                                                          "hybrid).")] = None,
     presliding_um: Annotated[float, typer.Option(help="Nominal presliding distance of the guides [um] for the "
                                                       "presliding-state inputs (0: left out).")] = 10.0,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the training record here.")] = None,
@@ -83,7 +86,7 @@ def train(
         kwargs["model_based"] = read_axes_file(axes)
     runs = [rec for _, rec in load_dataset(data)]
     config = TrainConfig(epochs=epochs, seed=seed, position_harmonics=harmonics, pole_pitch=pole_pitch_mm * 1e-3,
-                         linear_skip=skip, presliding_length=presliding_um * 1e-6)
+                         linear_skip=skip, skip_taps=skip_taps, presliding_length=presliding_um * 1e-6)
     est = (Hybrid if kind == "hybrid" else LSTM)(config=config)
     est.fit(runs, progress=lambda line: err_console.print(line, highlight=False), **kwargs)
     est.save(out)

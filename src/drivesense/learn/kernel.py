@@ -6,8 +6,9 @@ precision like the training (tanh and the sigmoid by a branch-free rational
 approximation, |error| < 3e-7, with float32 constants and numpy's error
 model: numba's default zero-division check on ``/`` otherwise stops the gate
 loop from vectorising, which cost a factor 1.7), with the
-hidden and cell states carried in :class:`LSTMState`: a trace processed at once
-or chunk by chunk gives the same numbers to the bit.  Optional dropout masks
+hidden and cell states (and the last inputs of a multi-tap linear skip) carried
+in :class:`LSTMState`: a trace processed at once or chunk by chunk gives the
+same numbers to the bit.  Optional dropout masks
 between layers give Monte-Carlo-dropout samples for prediction intervals.
 
 Layout for the kernel: per layer, the input and recurrent weights stacked and
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["LSTMWeights", "LSTMState", "run_lstm"]
+__all__ = ["LSTMWeights", "LSTMState", "run_lstm", "skip_to_torch"]
 
 
 @dataclass(frozen=True)
@@ -43,8 +44,9 @@ class LSTMWeights:
         Output weights.
     head_b : float
         Output bias.
-    skip_w : ndarray, shape (inputs,), optional
-        Linear skip from the inputs straight to the output (``skip.weight``);
+    skip_w : ndarray, shape (inputs,) or (inputs, taps), optional
+        Linear skip from the inputs straight to the output: a causal FIR filter,
+        column ``k`` weighting the inputs ``k`` samples back (``skip.weight``);
         None: no skip (the paper's network).
     dropout : float
         Dropout probability between layers (used only when sampling).
@@ -73,10 +75,16 @@ class LSTMWeights:
         object.__setattr__(self, "packed_bias", np.ascontiguousarray(self.bias, dtype=np.float32))
         object.__setattr__(self, "gate_scale", scale)
         object.__setattr__(self, "packed_head", np.ascontiguousarray(self.head_w, dtype=np.float32))
-        skip = np.zeros(int(self.in_dims[0]), dtype=np.float32)
+        skip = np.zeros((int(self.in_dims[0]), 1), dtype=np.float32)
         if self.skip_w is not None:
-            skip[:] = np.asarray(self.skip_w, dtype=np.float32).ravel()
+            given = np.asarray(self.skip_w, dtype=np.float32)
+            skip = np.ascontiguousarray(given.reshape(given.shape[0], -1))
         object.__setattr__(self, "packed_skip", skip)
+
+    @property
+    def taps(self) -> int:
+        """Samples the linear skip looks back over (1: the current one only)."""
+        return self.packed_skip.shape[1]
 
     @property
     def layers(self) -> int:
@@ -96,7 +104,9 @@ class LSTMWeights:
         ----------
         state : dict
             Mapping of names to arrays (tensors are converted with ``numpy()``);
-        ``skip.weight`` (a linear skip from the inputs) is optional.
+            ``skip.weight`` (a linear skip from the inputs) is optional: a
+            ``Linear`` weight ``(1, inputs)`` or a causal ``Conv1d`` weight
+            ``(1, inputs, taps)`` (last tap = current sample).
         layers : int
             Number of LSTM layers.
         dropout : float
@@ -116,7 +126,17 @@ class LSTMWeights:
         return cls(np.ascontiguousarray(packed_ih), np.ascontiguousarray(np.stack(w_hh)),
                    np.ascontiguousarray(np.stack(bias)), np.array([w.shape[1] for w in w_ih], dtype=np.int64),
                    np.ascontiguousarray(arr("head.weight").ravel()), float(arr("head.bias").ravel()[0]),
-                   float(dropout), arr("skip.weight").ravel() if "skip.weight" in state else None)
+                   float(dropout), _skip_from_torch(arr("skip.weight")) if "skip.weight" in state else None)
+
+
+def _skip_from_torch(w: np.ndarray) -> np.ndarray:
+    """(inputs, taps) by lag from a Linear (1, inputs) or causal Conv1d (1, inputs, taps) weight."""
+    return np.ascontiguousarray(w[0, :, ::-1] if w.ndim == 3 else w.reshape(-1, 1))
+
+
+def skip_to_torch(skip_w: np.ndarray) -> np.ndarray:
+    """The causal ``Conv1d`` weight ``(1, inputs, taps)`` of a skip given by lag (inverse of loading)."""
+    return np.ascontiguousarray(np.asarray(skip_w, dtype=np.float64).reshape(len(skip_w), -1)[None, :, ::-1])
 
 
 class LSTMState:
@@ -131,6 +151,8 @@ class LSTMState:
     def __init__(self, weights: LSTMWeights) -> None:
         self.h = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
         self.c = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
+        #: the last ``taps - 1`` input rows, oldest first (zeros at the start, like the causal padding in training)
+        self.tail = np.zeros((weights.taps - 1, int(weights.in_dims[0])), dtype=np.float32)
 
 
 def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int | None = None) -> np.ndarray:
@@ -157,8 +179,11 @@ def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int
     out = np.empty(x.shape[0], dtype=np.float32)
     p = weights.dropout if seed is not None else 0.0
     _lstm(weights.packed, weights.packed_bias, weights.gate_scale, weights.in_dims, weights.packed_head,
-          np.float32(weights.head_b), weights.packed_skip, state.h, state.c, x, out, np.float32(p),
+          np.float32(weights.head_b), weights.packed_skip, state.tail, state.h, state.c, x, out, np.float32(p),
           -1 if seed is None else int(seed))
+    keep = state.tail.shape[0]
+    if keep:
+        state.tail = np.ascontiguousarray(np.vstack([state.tail, x])[-keep:])
     return out.astype(np.float64)
 
 
@@ -194,7 +219,7 @@ def _tanh(x):
 
 
 @njit(cache=True, fastmath=True, nogil=True, error_model="numpy")
-def _lstm(w, bias, scale, in_dims, head_w, head_b, skip_w, h, c, x, out, p, seed):
+def _lstm(w, bias, scale, in_dims, head_w, head_b, skip_w, tail, h, c, x, out, p, seed):
     layers, _, g4 = w.shape
     hid = g4 // 4
     z = np.empty(w.shape[1], dtype=np.float32)
@@ -231,6 +256,12 @@ def _lstm(w, bias, scale, in_dims, head_w, head_b, skip_w, h, c, x, out, p, seed
         y = head_b
         for j in range(hid):
             y += head_w[j] * h[layers - 1, j]
-        for j in range(in_dims[0]):
-            y += skip_w[j] * x[t, j]
+        for lag in range(skip_w.shape[1]):
+            if t >= lag:
+                for j in range(in_dims[0]):
+                    y += skip_w[j, lag] * x[t - lag, j]
+            else:
+                row = tail.shape[0] + t - lag
+                for j in range(in_dims[0]):
+                    y += skip_w[j, lag] * tail[row, j]
         out[t] = y
