@@ -446,10 +446,10 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             net.skip.weight.copy_(torch.from_numpy(fir.astype(np.float32)))
             net.head.bias.fill_(float(coef[-1]))
             net.head.weight.zero_()
-    skip_params = [] if net.skip is None else list(net.skip.parameters())
-    rest = [q for q in net.parameters() if all(q is not k for k in skip_params)]
-    opt = torch.optim.Adam([{"params": rest}] + ([{"params": skip_params, "lr": config.lr * config.skip_lr_factor}]
-                                                 if skip_params else []), lr=config.lr)
+    groups = [{"params": [*net.lstm.parameters(), *net.head.parameters()]}]
+    if net.skip is not None:
+        groups.append({"params": net.skip.parameters(), "lr": config.lr * config.skip_lr_factor})
+    opt = torch.optim.Adam(groups, lr=config.lr)
     schedule = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=config.lr_decay, patience=config.lr_patience,
                                                           threshold=0.0) if config.lr_decay < 1 else None
     lengths = np.array([x.shape[0] for x in xs])
