@@ -12,10 +12,18 @@ also holds air cuts (the same toolpaths with the tool clear of the part, so
 the force is zero): free labelled examples of friction, cogging and inertia,
 reversals included, which a real machine gives at no cost.  Everything is
 seeded and cached on disk (one netCDF file per run plus ``index.json``).
+
+A cached run is reused only under the same key (:func:`run_key`): a hash of
+the run's spec and of the simulator's source, i.e. every ``.py`` file of
+:mod:`drivesense.machine` and :mod:`drivesense.sim`
+(:func:`simulator_fingerprint`), so any change to the physics or the
+simulators rebuilds the cache.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib
 import itertools
 import json
 import os
@@ -26,10 +34,14 @@ from typing import Callable, Sequence
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.io.netcdf import load_netcdf, save_netcdf
 from drivesense.recording import Recording
 
 __all__ = ["RunSpec", "allowed", "plan_runs", "build_dataset", "load_dataset", "load_folder", "HELD_OUT_PROCESS",
-           "simulator_fingerprint"]
+           "simulator_fingerprint", "run_key", "SIMULATOR_PACKAGES"]
+
+#: Packages whose source (every ``.py`` file next to their ``__init__``) keys the dataset cache.
+SIMULATOR_PACKAGES = ("drivesense.machine", "drivesense.sim")
 
 #: Process type never shown to the networks during training.
 HELD_OUT_PROCESS = "side_-x+y"
@@ -76,7 +88,21 @@ class RunSpec:
 
 
 def allowed(process: str, a_p: float, a_e: float) -> bool:
-    """Whether a combination is kept: chip cross-section <= 24 mm^2, grooves a_p <= 2 mm (see module doc)."""
+    """Whether a combination is kept: chip cross-section <= 24 mm^2, grooves a_p <= 2 mm (see module doc).
+
+    Parameters
+    ----------
+    process : str
+        Process type (see :func:`drivesense.sim.machining.process_names`).
+    a_p : float
+        Axial depth of cut [m].
+    a_e : float
+        Radial depth of cut [m].
+
+    Returns
+    -------
+    bool
+    """
     if process.startswith("groove"):
         return a_p <= 2e-3 + 1e-12
     return a_p * a_e <= 24e-6 + 1e-15
@@ -153,15 +179,45 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
 
 
 def simulator_fingerprint() -> str:
-    """Hash of the simulator's source: a cached run is reused only if the code that made it is unchanged."""
-    import hashlib
-    import importlib
+    """Hash of the simulator's source: every ``.py`` file of :data:`SIMULATOR_PACKAGES`.
 
+    The files are read next to each package's ``__init__``
+    (``Path(module.__file__).parent.glob("*.py")``), in sorted order, and
+    hashed with their package and file names (SHA-256).
+
+    Returns
+    -------
+    str
+        16 hex digits.
+    """
     h = hashlib.sha256()
-    for name in ("drivesense.sim.machining", "drivesense.sim.linear_machine", "drivesense.machine.linear_motor",
-                 "drivesense.machine.milling"):
-        h.update(Path(importlib.import_module(name).__file__).read_bytes())
+    for name in SIMULATOR_PACKAGES:
+        folder = Path(importlib.import_module(name).__file__).parent
+        for path in sorted(folder.glob("*.py")):
+            h.update(f"{name}/{path.name}\0".encode())
+            h.update(path.read_bytes())
+            h.update(b"\0")
     return h.hexdigest()[:16]
+
+
+def run_key(spec: RunSpec, fingerprint: str | None = None) -> str:
+    """Cache key of one run: a hash of its spec and of the simulator's source.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    fingerprint : str, optional
+        :func:`simulator_fingerprint` (computed if not given).
+
+    Returns
+    -------
+    str
+        16 hex digits; changes with any field of ``spec`` or any simulator source file.
+    """
+    fingerprint = simulator_fingerprint() if fingerprint is None else fingerprint
+    payload = json.dumps({"spec": asdict(spec), "simulator": fingerprint}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
 def _write_index(path: Path, payload: dict) -> None:
@@ -188,7 +244,8 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
     Returns
     -------
     dict
-        The index: runs with their split and file, ``bytes_on_disk``.
+        The index: runs with their split, file and cache key (:func:`run_key`),
+        the simulator fingerprint, ``bytes_on_disk``.
     """
     from drivesense.sim.machining import simulate_process
 
@@ -202,15 +259,15 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
     old = {}
     if index_path.exists():
         previous = json.loads(index_path.read_text())
-        if previous.get("simulator") == fingerprint:
-            old = {r["file"]: r for r in previous["runs"]}
+        old = {r["file"]: r.get("key") for r in previous.get("runs", [])}
     entries = []
     for spec in runs:
         file = f"runs/{spec.name}.nc"
-        if not (file in old and (out / file).exists() and old[file]["spec"] == asdict(spec)):
+        key = run_key(spec, fingerprint)
+        if not (old.get(file) == key and (out / file).exists()):
             rec = simulate(spec)
-            rec.with_meta(split=spec.split).save(out / file)
-        entries.append({"file": file, "spec": asdict(spec)})
+            save_netcdf(rec.with_meta(split=spec.split), out / file)
+        entries.append({"file": file, "spec": asdict(spec), "key": key})
         if progress:
             progress(spec.name)
     size = sum((out / e["file"]).stat().st_size for e in entries)
@@ -241,7 +298,7 @@ def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
     data = json.loads(index.read_text())
     out = []
     for entry in data["runs"]:
-        rec = Recording.load(folder / entry["file"])
+        rec = load_netcdf(folder / entry["file"])
         out.append((RunSpec(**entry["spec"]), rec))
     return out
 
@@ -251,6 +308,21 @@ def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0) -> list[tup
 
     Traces keep their sample rate here; :mod:`drivesense.learn.train` resamples
     explicitly to the model's rate.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Folder holding the traces.
+    val_fraction : float, optional
+        Share of the traces for validation [-] (at least one when there are
+        more than two traces).
+    seed : int, optional
+        Seed of the draw.
+
+    Returns
+    -------
+    list of (None, Recording)
+        Each trace with ``meta["split"]`` set to ``"train"`` or ``"val"``.
     """
     from drivesense.io import read_recording
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.machine.milling import (EndMill, MillingCut, _check_int, _check_number, average_chip_thickness,
+from drivesense.machine.milling import (EndMill, MillingCut, check_int, check_number, average_chip_thickness,
                                         engagement_angles, material_removal_rate)
 
 __all__ = [
@@ -38,6 +38,8 @@ __all__ = [
     "cutting_power",
     "average_tangential_force",
     "force_per_depth",
+    "CutTable",
+    "finite_vector",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -93,14 +95,14 @@ def chip_thickness_from_angles(feed_per_tooth, entry_angle, exit_angle) -> float
     ConfigError
         Negative feed or angles out of order / outside [0, pi].
     """
-    c = _check_number(feed_per_tooth, "feed_per_tooth", nonneg=True)
+    c = check_number(feed_per_tooth, "feed_per_tooth", nonneg=True)
     st, ex = _check_angles(entry_angle, exit_angle)
     return c * (math.cos(st) - math.cos(ex)) / (ex - st)
 
 
 def _check_angles(entry, exit_) -> tuple[float, float]:
-    st = _check_number(entry, "entry_angle")
-    ex = _check_number(exit_, "exit_angle")
+    st = check_number(entry, "entry_angle")
+    ex = check_number(exit_, "exit_angle")
     if not (-_ANGLE_TOL <= st < math.pi):
         raise ConfigError(f"'entry_angle' must be in [0, pi) rad, got {st!r}")
     if not (0.0 < ex <= math.pi + _ANGLE_TOL):
@@ -154,11 +156,11 @@ class CutConditions:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "diameter", _check_number(self.diameter, "diameter", positive=True))
-        set_(self, "flutes", _check_int(self.flutes, "flutes"))
-        set_(self, "axial_depth", _check_number(self.axial_depth, "axial_depth", positive=True))
-        set_(self, "spindle_speed", _check_number(self.spindle_speed, "spindle_speed", positive=True))
-        set_(self, "feed_per_tooth", _check_number(self.feed_per_tooth, "feed_per_tooth", nonneg=True))
+        set_(self, "diameter", check_number(self.diameter, "diameter", positive=True))
+        set_(self, "flutes", check_int(self.flutes, "flutes"))
+        set_(self, "axial_depth", check_number(self.axial_depth, "axial_depth", positive=True))
+        set_(self, "spindle_speed", check_number(self.spindle_speed, "spindle_speed", positive=True))
+        set_(self, "feed_per_tooth", check_number(self.feed_per_tooth, "feed_per_tooth", nonneg=True))
         st, ex = _check_angles(self.entry_angle, self.exit_angle)
         if st > _ANGLE_TOL and ex < math.pi - _ANGLE_TOL:
             raise ConfigError(f"'entry_angle' {st!r} rad and 'exit_angle' {ex!r} rad: a straight end-milling cut "
@@ -317,8 +319,8 @@ def cutting_power(Ktc, Kte, cuts):
     float or ndarray
         Power [W] (one value per cut for a sequence).
     """
-    ktc = _check_number(Ktc, "Ktc")
-    kte = _check_number(Kte, "Kte")
+    ktc = check_number(Ktc, "Ktc")
+    kte = check_number(Kte, "Kte")
     items = _cuts(cuts)
     p = np.array([ktc * c.material_removal_rate + kte * c.contact_area_rate for c in items], dtype=float)
     return _scalar_or_array(p, isinstance(cuts, CutConditions))
@@ -382,3 +384,91 @@ def force_per_depth(power, cuts):
     p = _power(power, len(items))
     f = np.array([pk / c.contact_area_rate for pk, c in zip(p, items)], dtype=float)
     return _scalar_or_array(f, isinstance(cuts, CutConditions))
+
+
+def finite_vector(values, name: str) -> np.ndarray:
+    """``values`` as a 1-D float array, refusing non-numeric or non-finite entries (naming ``name``).
+
+    Parameters
+    ----------
+    values : array_like
+        The numbers [any unit; returned unchanged].
+    name : str
+        Field name for the message.
+    """
+    try:
+        arr = np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise InvalidSignalError(f"'{name}' must be numeric: {exc}") from None
+    if not np.all(np.isfinite(arr)):
+        raise InvalidSignalError(f"'{name}' holds non-finite values (NaN or inf)")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class CutTable:
+    """Calibration cuts with their measured power, optionally grouped into calibrations along a tool's life.
+
+    The data only; :func:`drivesense.identify.coefficients.fit_cut_table` calibrates K_tc/K_te from it.
+
+    Parameters
+    ----------
+    cuts : tuple of CutConditions
+        The cuts (SI).
+    cutting_power : ndarray
+        Average cutting power of each cut [W] (spindle power minus air-cut power).
+    calibration : ndarray of int, optional
+        Calibration number of each cut (cuts of one calibration are fitted together).
+    distance : ndarray, optional
+        Distance the tool had cut when each cut was made [m] (the wear clock).
+    name : str
+        A label (the file stem when read).
+    """
+
+    cuts: tuple
+    cutting_power: np.ndarray
+    calibration: np.ndarray | None = None
+    distance: np.ndarray | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cuts", tuple(self.cuts))
+        n = len(self.cuts)
+        if n == 0:
+            raise InvalidSignalError(f"cut table {self.name!r} holds no cuts")
+        p = finite_vector(self.cutting_power, "cutting_power")
+        if p.size != n:
+            raise InvalidSignalError(f"'cutting_power' has {p.size} values for {n} cuts")
+        object.__setattr__(self, "cutting_power", p)
+        for attr in ("calibration", "distance"):
+            v = getattr(self, attr)
+            if v is not None:
+                v = finite_vector(v, attr)
+                if v.size != n:
+                    raise InvalidSignalError(f"'{attr}' has {v.size} values for {n} cuts")
+                if attr == "distance" and np.any(v < 0):
+                    raise InvalidSignalError(f"'distance' must be >= 0 m, got min {v.min()!r}")
+                object.__setattr__(self, attr, v.astype(int) if attr == "calibration" else v)
+
+    def __len__(self) -> int:
+        return len(self.cuts)
+
+    def groups(self) -> list[tuple[float, np.ndarray]]:
+        """Cut indices of each calibration, in order of distance.
+
+        Returns
+        -------
+        list of (distance [m], index array)
+            One entry per calibration (by ``calibration`` number, else by ``distance``, else one for all);
+            the distance is the mean distance of its cuts (0 without a distance column).
+        """
+        n = len(self.cuts)
+        key = self.calibration if self.calibration is not None else self.distance
+        if key is None:
+            return [(0.0, np.arange(n))]
+        out = []
+        for k in np.unique(key):
+            idx = np.flatnonzero(key == k)
+            d = float(np.mean(self.distance[idx])) if self.distance is not None else float(k)
+            out.append((d, idx))
+        return sorted(out, key=lambda g: g[0])

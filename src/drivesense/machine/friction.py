@@ -10,6 +10,32 @@ drivesense adds what real axes show on top (and what no estimator models):
 a Coulomb level that ripples with position (several wavelengths), drifts slowly
 along the travel, and grows with the normal load on the guides.
 
+This module holds the one implementation of that physics used by both
+simulators (the ball-screw stage, :mod:`drivesense.sim.servo`, and the
+linear-motor machine, :mod:`drivesense.sim.linear_machine`):
+
+* :func:`ripple_sum` -- a sum of position-periodic sines (friction ripple,
+  cogging, screw lead error);
+* :func:`coulomb_level` -- the local Coulomb level with drift, ripple and load,
+  under the clamping rule below;
+* :func:`lugre_step` -- exact integration of the bristle state over one step.
+
+All three are compiled (numba) and take their parameters as named tuples
+(:class:`RippleParams`, :class:`LuGreParams`), built by
+:func:`ripple_params` and :meth:`LuGreFriction.params`.
+
+Clamping rule
+-------------
+The Coulomb level ``F_c + drift x + load_coefficient N + sum ripples`` is
+clamped at 0 N from below: friction only ever opposes motion, so ripple,
+drift or a guide unloaded by a negative normal force ``N`` may lower the
+level to zero, never below (a negative level would make friction drive the
+axis).  The static excess ``F_s - F_c`` rides on top of the clamped level
+unchanged.  The resulting Stribeck level ``g`` is then floored at
+:data:`G_MIN` (1e-9 N): that floor is a guard against dividing by zero in
+the bristle equation, not physics -- with ``g`` at the floor the bristles
+hold at most a nano-newton.
+
 Everything here is translational: motor-side friction torque is written as a
 force through the screw radius (``T_fric / R``).
 """
@@ -18,23 +44,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple, Sequence
 
 import numpy as np
 from numba import njit
 
-__all__ = ["Ripple", "LuGreFriction", "lugre_step", "ripple_value", "coulomb_level"]
+__all__ = ["Ripple", "RippleParams", "LuGreParams", "LuGreFriction", "G_MIN", "ripple_params", "ripple_values",
+           "ripple_sum", "coulomb_level", "lugre_step"]
+
+#: Floor of the Stribeck level ``g`` in the bristle equation [N] (a division guard, see the module notes).
+G_MIN = 1e-9
 
 
 @dataclass(frozen=True)
 class Ripple:
-    """One position-periodic friction component.
+    """One position-periodic component ``amplitude * sin(2 pi x / wavelength + phase)``.
 
     Parameters
     ----------
     wavelength : float
         Period along the coordinate [m].
     amplitude : float
-        Force amplitude [N].
+        Amplitude in the unit of the quantity it adds to ([N] for friction
+        and cogging, [m] for a lead error).
     phase : float
         Phase [rad].
     """
@@ -42,6 +74,214 @@ class Ripple:
     wavelength: float
     amplitude: float
     phase: float = 0.0
+
+
+class RippleParams(NamedTuple):
+    """Ripple components as arrays for compiled code (see :func:`ripple_params`).
+
+    Attributes
+    ----------
+    wavelength : ndarray
+        Periods along the coordinate [m].
+    amplitude : ndarray
+        Amplitudes (unit of the quantity they add to: [N] or [m]).
+    phase : ndarray
+        Phases [rad].
+    """
+
+    wavelength: np.ndarray
+    amplitude: np.ndarray
+    phase: np.ndarray
+
+
+class LuGreParams(NamedTuple):
+    """LuGre friction parameters for compiled code (see :meth:`LuGreFriction.params`).
+
+    Attributes
+    ----------
+    F_c : float
+        Coulomb level at coordinate 0 without load [N].
+    F_s : float
+        Static level at coordinate 0 without load [N]; ``F_s - F_c`` is the
+        static excess added to the local Coulomb level.
+    v_s : float
+        Stribeck velocity [m/s].
+    sigma0 : float
+        Bristle stiffness [N/m] (> 0).
+    sigma1 : float
+        Bristle damping [N*s/m].
+    sigma2 : float
+        Viscous coefficient [N*s/m].
+    drift_per_m : float
+        Change of the Coulomb level along the coordinate [N/m].
+    load_coefficient : float
+        Extra Coulomb level per newton of normal load [-].
+    ripple : RippleParams
+        Position-periodic additions to the Coulomb level [N].
+    """
+
+    F_c: float
+    F_s: float
+    v_s: float
+    sigma0: float
+    sigma1: float
+    sigma2: float
+    drift_per_m: float
+    load_coefficient: float
+    ripple: RippleParams
+
+
+def ripple_params(ripples: Sequence[Ripple]) -> RippleParams:
+    """Pack ripple components into the arrays the compiled code reads.
+
+    Parameters
+    ----------
+    ripples : sequence of Ripple
+        Components (may be empty).
+
+    Returns
+    -------
+    RippleParams
+        Wavelengths [m], amplitudes and phases [rad], float64, C-contiguous.
+    """
+    return RippleParams(np.array([r.wavelength for r in ripples], dtype=np.float64),
+                        np.array([r.amplitude for r in ripples], dtype=np.float64),
+                        np.array([r.phase for r in ripples], dtype=np.float64))
+
+
+@njit(cache=True)
+def ripple_sum(r: RippleParams, x: float, base: float = 0.0) -> float:
+    """Sum of ripple components at coordinate ``x``.
+
+    ``base + sum_k A_k sin(2 pi x / lambda_k + phi_k)``, accumulated in the
+    order of the components, starting from ``base``.
+
+    Parameters
+    ----------
+    r : RippleParams
+        Components (wavelengths [m], amplitudes, phases [rad]).
+    x : float
+        Coordinate [m].
+    base : float
+        Value the sum starts from (e.g. a linear drift term), in the unit of
+        the amplitudes.
+
+    Returns
+    -------
+    float
+        The sum, in the unit of the amplitudes ([N] or [m]).
+    """
+    s = base
+    for k in range(r.wavelength.size):
+        s += r.amplitude[k] * math.sin(2.0 * math.pi * x / r.wavelength[k] + r.phase[k])
+    return s
+
+
+@njit(cache=True)
+def _ripple_array(r: RippleParams, x: np.ndarray) -> np.ndarray:
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = ripple_sum(r, x[i])
+    return out
+
+
+def ripple_values(ripples: Sequence[Ripple] | RippleParams, x) -> np.ndarray:
+    """:func:`ripple_sum` over an array of coordinates (for NumPy callers).
+
+    Parameters
+    ----------
+    ripples : sequence of Ripple or RippleParams
+        Components.
+    x : array_like
+        Coordinates [m].
+
+    Returns
+    -------
+    ndarray
+        The ripple sum at each coordinate (shape of ``x``; unit of the amplitudes).
+    """
+    r = ripples if isinstance(ripples, RippleParams) else ripple_params(ripples)
+    xa = np.asarray(x, dtype=np.float64)
+    return _ripple_array(r, np.ascontiguousarray(xa.ravel())).reshape(xa.shape)
+
+
+@njit(cache=True)
+def coulomb_level(p: LuGreParams, x: float, load: float) -> float:
+    """Local Coulomb level with drift, ripple and load, clamped at zero.
+
+    ``max(0, F_c + (drift x + sum ripples) + load_coefficient load)``; see the
+    module notes for the clamping rule.
+
+    Parameters
+    ----------
+    p : LuGreParams
+        Friction parameters.
+    x : float
+        Coordinate of the ripple and drift [m].
+    load : float
+        Extra normal load on the guides [N] (negative: unloaded).
+
+    Returns
+    -------
+    float
+        Coulomb level [N], >= 0.
+    """
+    level = p.F_c + ripple_sum(p.ripple, x, p.drift_per_m * x) + p.load_coefficient * load
+    return level if level > 0.0 else 0.0
+
+
+@njit(cache=True)
+def _coulomb_array(p: LuGreParams, x: np.ndarray, load: np.ndarray) -> np.ndarray:
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = coulomb_level(p, x[i], load[i])
+    return out
+
+
+@njit(cache=True)
+def lugre_step(p: LuGreParams, z: float, v: float, F_c: float, dt: float):
+    """Advance the bristle state over ``dt`` at constant velocity ``v``.
+
+    The bristle equation is integrated exactly for constant ``v`` (an
+    exponential approach to the steady deflection ``sgn(v) g / sigma0``),
+    which is stable for any ``sigma0``; at ``v = 0`` the bristles hold.
+
+    Parameters
+    ----------
+    p : LuGreParams
+        Friction parameters (``F_s - F_c``, ``v_s``, ``sigma0..2`` are read).
+    z : float
+        Bristle deflection at the start of the step [m].
+    v : float
+        Sliding velocity over the step [m/s].
+    F_c : float
+        Local Coulomb level [N] from :func:`coulomb_level` (position and
+        load change little within a step).
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    z_new : float
+        Bristle deflection at the end of the step [m].
+    force : float
+        Friction force opposing motion [N]:
+        ``sigma0 z_new + sigma1 (z_new - z) / dt + sigma2 v``.
+    """
+    g = F_c + (p.F_s - p.F_c) * math.exp(-(v / p.v_s) ** 2)
+    if g < G_MIN:
+        g = G_MIN
+    sigma0 = p.sigma0
+    av = abs(v)
+    if av > 0.0:
+        z_ss = g / sigma0 * (1.0 if v > 0 else -1.0)
+        decay = math.exp(-sigma0 * av * dt / g)
+        z_new = z_ss + (z - z_ss) * decay
+    else:
+        z_new = z
+    dz = (z_new - z) / dt
+    force = sigma0 * z_new + p.sigma1 * dz + p.sigma2 * v
+    return z_new, force
 
 
 @dataclass(frozen=True)
@@ -63,7 +303,7 @@ class LuGreFriction:
     sigma2 : float
         Viscous coefficient [N*s/m] (on top of the linear model's damping).
     ripples : tuple of Ripple
-        Position-periodic additions to the Coulomb level.
+        Position-periodic additions to the Coulomb level [N].
     drift_per_m : float
         Linear change of the Coulomb level along the travel [N/m].
     load_coefficient : float
@@ -80,75 +320,66 @@ class LuGreFriction:
     drift_per_m: float = 0.0
     load_coefficient: float = 0.0
 
+    def params(self) -> LuGreParams:
+        """The parameters as the named tuple the compiled simulators read.
+
+        Returns
+        -------
+        LuGreParams
+        """
+        return LuGreParams(float(self.F_c), float(self.F_s), float(self.v_s), float(self.sigma0),
+                           float(self.sigma1), float(self.sigma2), float(self.drift_per_m),
+                           float(self.load_coefficient), ripple_params(self.ripples))
+
     def coulomb_level(self, position, normal_load=0.0):
-        """Coulomb level at ``position`` [m] with extra ``normal_load`` [N], in N."""
-        x = np.asarray(position, dtype=float)
-        level = self.F_c + self.drift_per_m * x + self.load_coefficient * np.asarray(normal_load, float)
-        for r in self.ripples:
-            level = level + r.amplitude * np.sin(2.0 * math.pi * x / r.wavelength + r.phase)
-        return level
+        """Coulomb level [N] at ``position`` [m] with extra ``normal_load`` [N] (:func:`coulomb_level`).
+
+        Parameters
+        ----------
+        position : float or array_like
+            Coordinate [m].
+        normal_load : float or array_like
+            Extra normal load [N] (broadcast against ``position``).
+
+        Returns
+        -------
+        float or ndarray
+            Coulomb level [N], clamped at 0 (module notes).
+        """
+        x, n = np.broadcast_arrays(np.asarray(position, dtype=np.float64), np.asarray(normal_load, np.float64))
+        out = _coulomb_array(self.params(), np.ascontiguousarray(x.ravel()), np.ascontiguousarray(n.ravel()))
+        return out.reshape(x.shape)[()]
 
     def steady_state(self, velocity, position=0.0, normal_load=0.0):
-        """Steady sliding friction force at constant ``velocity`` [m/s], in N."""
+        """Steady sliding friction force at constant ``velocity``.
+
+        ``sgn(v) (F_c(x, N) + (F_s - F_c) exp(-(v / v_s)^2)) + sigma2 v``, the
+        limit of :func:`lugre_step` at constant velocity.
+
+        Parameters
+        ----------
+        velocity : float or array_like
+            Sliding velocity [m/s].
+        position : float or array_like
+            Coordinate of ripple and drift [m].
+        normal_load : float or array_like
+            Extra normal load [N].
+
+        Returns
+        -------
+        float or ndarray
+            Friction force [N].
+        """
         v = np.asarray(velocity, dtype=float)
         g = self.coulomb_level(position, normal_load) + (self.F_s - self.F_c) * np.exp(-((v / self.v_s) ** 2))
-        return np.sign(v) * g + self.sigma2 * v
+        return np.sign(v) * np.maximum(g, G_MIN) + self.sigma2 * v
 
     def scaled(self, factor: float) -> "LuGreFriction":
-        """A copy with Coulomb, static and viscous levels scaled by ``factor`` (run-to-run variation)."""
-        return replace(self, F_c=self.F_c * factor, F_s=self.F_s * factor, sigma2=self.sigma2 * factor)
+        """A copy with Coulomb, static and viscous levels scaled by ``factor`` [-] (run-to-run variation).
 
-    def pack(self) -> np.ndarray:
-        """Parameters as a flat float array for the compiled simulator.
-
-        Layout: ``[F_c, F_s, v_s, sigma0, sigma1, sigma2, drift, load_coef, n, (wl, amp, phase)*n]``.
+        Parameters
+        ----------
+        factor : float
+            Scale of the three levels [-].
         """
-        head = [self.F_c, self.F_s, self.v_s, self.sigma0, self.sigma1, self.sigma2,
-                self.drift_per_m, self.load_coefficient, float(len(self.ripples))]
-        for r in self.ripples:
-            head += [r.wavelength, r.amplitude, r.phase]
-        return np.asarray(head, dtype=np.float64)
-
-
-@njit(cache=True, fastmath=False)
-def ripple_value(p: np.ndarray, x: float) -> float:
-    """Coulomb-level addition from drift and ripples of packed parameters ``p`` at ``x`` [m]."""
-    value = p[6] * x
-    n = int(p[8])
-    for k in range(n):
-        wl = p[9 + 3 * k]
-        value += p[10 + 3 * k] * math.sin(2.0 * math.pi * x / wl + p[11 + 3 * k])
-    return value
-
-
-@njit(cache=True, fastmath=False)
-def coulomb_level(p: np.ndarray, x: float, load: float) -> float:
-    """Coulomb level [N] of packed parameters ``p`` at position ``x`` [m] with extra normal ``load`` [N]."""
-    level = p[0] + ripple_value(p, x) + p[7] * load
-    return level if level > 0.0 else 0.0
-
-
-@njit(cache=True, fastmath=False)
-def lugre_step(p: np.ndarray, z: float, v: float, F_c: float, dt: float):
-    """Advance the bristle state over ``dt`` at velocity ``v`` and return ``(z_new, force)``.
-
-    ``F_c`` is the local Coulomb level from :func:`coulomb_level` (position
-    and load change little within a sub-step).  The bristle equation is
-    integrated exactly for constant ``v`` over the step (exponential approach
-    to the steady deflection), which is stable for any ``sigma0``.  ``force``
-    is the friction force [N] opposing motion.
-    """
-    g = F_c + (p[1] - p[0]) * math.exp(-(v / p[2]) ** 2)
-    if g < 1e-12:
-        g = 1e-12
-    sigma0 = p[3]
-    av = abs(v)
-    if av > 0.0:
-        z_ss = g / sigma0 * (1.0 if v > 0 else -1.0)
-        decay = math.exp(-sigma0 * av * dt / g)
-        z_new = z_ss + (z - z_ss) * decay
-    else:
-        z_new = z
-    dz = (z_new - z) / dt
-    force = sigma0 * z_new + p[4] * dz + p[5] * v
-    return z_new, force
+        return replace(self, F_c=self.F_c * factor, F_s=self.F_s * factor, sigma2=self.sigma2 * factor)

@@ -256,15 +256,33 @@ class LinearMotorAxis:
 
     # ------------------------------------------------------------- force terms
     def motor_force(self, current):
-        """Motor force ``K_m I`` [N] for motor current ``current`` [A]."""
+        """Motor force ``K_m I`` [N] for motor current ``current`` [A].
+
+        Parameters
+        ----------
+        current : float or array_like
+            Motor current [A].
+        """
         return self.K_m * _signal(current, "current")
 
     def restoring_force(self, position):
-        """Restoring force ``k (s - s_r)`` [N] at ``position`` [m]."""
+        """Restoring force ``k (s - s_r)`` [N] at ``position`` [m].
+
+        Parameters
+        ----------
+        position : float or array_like
+            Axis position [m].
+        """
         return self.k * (_signal(position, "position") - self.s_r)
 
     def cogging_force(self, position):
-        """Cogging force [N] at ``position`` [m] (periodic linear interpolation in the table)."""
+        """Cogging force [N] at ``position`` [m] (periodic linear interpolation in the table).
+
+        Parameters
+        ----------
+        position : float or array_like
+            Axis position [m].
+        """
         s = _signal(position, "position")
         n = self.cogging.size
         u = np.mod(s, self.pole_pitch) / self.pole_pitch * n
@@ -296,12 +314,24 @@ class LinearMotorAxis:
         return sgn * self.stribeck_level(v) + self.sigma * v
 
     def stribeck_level(self, velocity):
-        """Magnitude of the Stribeck friction ``F_C + (F_br - F_C) exp(-|v / v_s|^delta)`` [N] at ``velocity`` [m/s]."""
+        """Magnitude of the Stribeck friction ``F_C + (F_br - F_C) exp(-|v / v_s|^delta)`` [N] at ``velocity`` [m/s].
+
+        Parameters
+        ----------
+        velocity : float or array_like
+            Axis velocity [m/s].
+        """
         v = _signal(velocity, "velocity")
         return self.F_C + (self.F_br - self.F_C) * np.exp(-np.abs(v / self.v_s) ** self.delta)
 
     def cogging_amplitudes(self, n_harmonics: int = 3) -> np.ndarray:
-        """Amplitudes [N] of harmonics 1..``n_harmonics`` of the pole pitch in the cogging table."""
+        """Amplitudes [N] of harmonics 1..``n_harmonics`` of the pole pitch in the cogging table.
+
+        Parameters
+        ----------
+        n_harmonics : int, optional
+            Number of harmonics (default 3).
+        """
         spec = np.fft.rfft(self.cogging) / self.cogging.size * 2.0
         return np.abs(spec[1:n_harmonics + 1])
 
@@ -362,7 +392,13 @@ class ThreeAxisModel:
                 raise ConfigError(f"axis '{ax}' must be a LinearMotorAxis, got {type(getattr(self, ax)).__name__}")
 
     def axis(self, name: str) -> LinearMotorAxis:
-        """The model of axis ``name`` ("x", "y" or "z")."""
+        """The model of axis ``name`` ("x", "y" or "z").
+
+        Parameters
+        ----------
+        name : {"x", "y", "z"}
+            Axis letter.
+        """
         if name not in AXES:
             raise ConfigError(f"unknown axis {name!r} (expected x, y or z)")
         return getattr(self, name)
@@ -422,9 +458,13 @@ class LinearAxisPhysics:
     cogging_variation : float
         Relative change of the cogging amplitude along the travel [-] (one
         slow sine over ``travel``).
-    friction : LuGreFriction
-        Dynamic friction (presliding stiffness, damping, ripple, drift per m,
-        load coefficient) around the model's Stribeck curve.
+    friction : LuGreFriction or None
+        Dynamic friction around the model's Stribeck curve: the simulator
+        takes its presliding stiffness ``sigma0``, damping ``sigma1``,
+        ripple, drift per metre (about the travel centre) and load
+        coefficient; the levels ``F_C``, ``F_br``, ``v_s`` and the viscous
+        ``sigma`` come from ``model`` (so run-to-run variation applies).
+        None: the model's static Stribeck curve.
     km_droop : float
         Relative fall of ``K_m`` at ``rated_current`` (quadratic) [-].
     rated_current : float
@@ -451,29 +491,14 @@ class LinearAxisPhysics:
     current_extra_pole: float = 2.0e4
     run_spread: float = 0.02
 
-    def pack(self, exact: bool) -> np.ndarray:
-        """Parameters as a flat array for the compiled simulator (layout in :mod:`drivesense.sim.linear_machine`)."""
-        md = self.model
-        fr = self.friction
-        mid = 0.5 * (self.travel[0] + self.travel[1])
-        drift = 0.0 if (exact or fr is None) else fr.drift_per_m
-        sigma0 = fr.sigma0 if fr is not None else 0.0
-        sigma1 = fr.sigma1 if fr is not None else 0.0
-        head = [md.K_m, md.k, md.s_r, md.pole_pitch, md.F_C - drift * mid, md.F_br - drift * mid, md.v_s,
-                md.sigma, sigma0, sigma1, drift, 0.0 if (exact or fr is None) else fr.load_coefficient,
-                0.0 if exact else self.km_droop, self.rated_current, self.max_current, self.current_bandwidth,
-                0.0 if exact else self.current_extra_pole, 0.0 if exact else self.cogging_variation,
-                self.travel[1] - self.travel[0], float(len(self.cogging_harmonics)),
-                0.0 if (exact or fr is None) else float(len(fr.ripples)), md.delta]
-        for amp, phase in self.cogging_harmonics:
-            head += [amp, phase]
-        if not exact and fr is not None:
-            for r in fr.ripples:
-                head += [r.wavelength, r.amplitude, r.phase]
-        return np.asarray(head, dtype=np.float64)
-
     def varied(self, rng: np.random.Generator) -> "LinearAxisPhysics":
-        """A copy with run-to-run variation of the friction and restoring levels."""
+        """A copy with run-to-run variation of the friction and restoring levels.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of the variation (``run_spread`` relative standard deviation).
+        """
         if self.run_spread <= 0:
             return self
         f = 1.0 + self.run_spread * rng.standard_normal(2)
@@ -498,7 +523,9 @@ class LinearMachinePhysics:
         as a share of the X+Z weight [1/m].
     exact : bool
         True: the estimators' own model (static Stribeck friction, the
-        model's cogging table, no droop, lag, coupling or variation).
+        model's cogging table, no droop, lag, coupling or variation).  Set
+        by :meth:`ideal`; the simulator's ideal switch is
+        :meth:`drivesense.sim.machining.ProcessSettings.as_ideal`.
     """
 
     x: LinearAxisPhysics
@@ -509,7 +536,13 @@ class LinearMachinePhysics:
     exact: bool = False
 
     def axis(self, name: str) -> LinearAxisPhysics:
-        """Physics of axis ``name``."""
+        """Physics of axis ``name``.
+
+        Parameters
+        ----------
+        name : {"x", "y", "z"}
+            Axis letter.
+        """
         if name not in AXES:
             raise ConfigError(f"unknown axis {name!r} (expected x, y or z)")
         return getattr(self, name)
@@ -519,11 +552,24 @@ class LinearMachinePhysics:
         return ThreeAxisModel(self.x.model, self.y.model, self.z.model)
 
     def ideal(self) -> "LinearMachinePhysics":
-        """Physics reduced to exactly :meth:`model` (tests only)."""
+        """Physics reduced to exactly :meth:`model` (``exact``, no coupling or weight shift).
+
+        The physics part of :meth:`drivesense.sim.machining.ProcessSettings.as_ideal`.
+
+        Returns
+        -------
+        LinearMachinePhysics
+        """
         return replace(self, exact=True, yaw_coupling=0.0, weight_shift=0.0)
 
     def varied(self, rng: np.random.Generator) -> "LinearMachinePhysics":
-        """A copy with run-to-run variation (none for the exact model)."""
+        """A copy with run-to-run variation (none for the exact model).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of the variation of each axis.
+        """
         if self.exact:
             return self
         return replace(self, x=self.x.varied(rng), y=self.y.varied(rng), z=self.z.varied(rng))

@@ -56,7 +56,7 @@ _TWO_PI = 2.0 * math.pi
 _MODES = ("up", "down")
 
 
-def _check_number(value, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
+def check_number(value, name: str, *, positive: bool = False, nonneg: bool = False) -> float:
     """Return ``value`` as a finite float or raise :class:`ConfigError` naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ConfigError(f"'{name}' must be a real number, got {value!r}")
@@ -70,7 +70,7 @@ def _check_number(value, name: str, *, positive: bool = False, nonneg: bool = Fa
     return value
 
 
-def _check_int(value, name: str, minimum: int = 1) -> int:
+def check_int(value, name: str, minimum: int = 1) -> int:
     """Return ``value`` as an int >= ``minimum`` or raise :class:`ConfigError`."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ConfigError(f"'{name}' must be an integer, got {value!r}")
@@ -117,7 +117,7 @@ class CuttingCoefficients:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            object.__setattr__(self, f.name, _check_number(getattr(self, f.name), f.name))
+            object.__setattr__(self, f.name, check_number(getattr(self, f.name), f.name))
 
     @classmethod
     def aluminium(cls) -> "CuttingCoefficients":
@@ -160,17 +160,17 @@ class EndMill:
     runout_phase: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "diameter", _check_number(self.diameter, "diameter", positive=True))
-        object.__setattr__(self, "flutes", _check_int(self.flutes, "flutes"))
-        helix = _check_number(self.helix_deg, "helix_deg", nonneg=True)
+        object.__setattr__(self, "diameter", check_number(self.diameter, "diameter", positive=True))
+        object.__setattr__(self, "flutes", check_int(self.flutes, "flutes"))
+        helix = check_number(self.helix_deg, "helix_deg", nonneg=True)
         if helix >= 90.0:
             raise ConfigError(f"'helix_deg' must be < 90 deg, got {helix!r}")
         object.__setattr__(self, "helix_deg", helix)
-        runout = _check_number(self.runout, "runout", nonneg=True)
+        runout = check_number(self.runout, "runout", nonneg=True)
         if runout >= 0.5 * self.diameter:
             raise ConfigError(f"'runout' must be smaller than the tool radius {0.5 * self.diameter!r} m, got {runout!r}")
         object.__setattr__(self, "runout", runout)
-        object.__setattr__(self, "runout_phase", _check_number(self.runout_phase, "runout_phase"))
+        object.__setattr__(self, "runout_phase", check_number(self.runout_phase, "runout_phase"))
 
     @property
     def flute_radii(self) -> np.ndarray:
@@ -202,11 +202,11 @@ class MillingCut:
     axial_slices: int = 20
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "radial_depth", _check_number(self.radial_depth, "radial_depth", positive=True))
-        object.__setattr__(self, "axial_depth", _check_number(self.axial_depth, "axial_depth", positive=True))
+        object.__setattr__(self, "radial_depth", check_number(self.radial_depth, "radial_depth", positive=True))
+        object.__setattr__(self, "axial_depth", check_number(self.axial_depth, "axial_depth", positive=True))
         if self.mode not in _MODES:
             raise ConfigError(f"'mode' must be 'up' or 'down', got {self.mode!r}")
-        object.__setattr__(self, "axial_slices", _check_int(self.axial_slices, "axial_slices"))
+        object.__setattr__(self, "axial_slices", check_int(self.axial_slices, "axial_slices"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -267,8 +267,8 @@ def engagement_angles(diameter, radial_depth, mode) -> tuple[float, float]:
     phi_st, phi_ex : float
         Start and exit angles [rad], measured clockwise from +y (normal to feed).
     """
-    d = _check_number(diameter, "diameter", positive=True)
-    ae = _check_number(radial_depth, "radial_depth", positive=True)
+    d = check_number(diameter, "diameter", positive=True)
+    ae = check_number(radial_depth, "radial_depth", positive=True)
     if ae > d:
         raise ConfigError(f"'radial_depth' {ae!r} m exceeds the tool diameter {d!r} m")
     if mode not in _MODES:
@@ -297,7 +297,7 @@ def tooth_passing_frequency(spindle_speed_rpm, flutes):
         Tooth-passing frequency [Hz].
     """
     n = _as_signal(spindle_speed_rpm, "spindle_speed_rpm", nonneg=True)
-    f = n * _check_int(flutes, "flutes") / 60.0
+    f = n * check_int(flutes, "flutes") / 60.0
     return float(f) if f.ndim == 0 else f
 
 
@@ -320,7 +320,7 @@ def feed_per_tooth(feed_speed, spindle_speed, flutes):
     """
     vf = _as_signal(feed_speed, "feed_speed", nonneg=True)
     omega = _as_signal(spindle_speed, "spindle_speed", positive=True)
-    c = _TWO_PI * vf / (_check_int(flutes, "flutes") * omega)
+    c = _TWO_PI * vf / (check_int(flutes, "flutes") * omega)
     return float(c) if c.ndim == 0 else c
 
 
@@ -345,7 +345,7 @@ def average_chip_thickness(feed_per_tooth, diameter, radial_depth, mode) -> floa
     float
         Average chip thickness [m].
     """
-    c = _check_number(feed_per_tooth, "feed_per_tooth", nonneg=True)
+    c = check_number(feed_per_tooth, "feed_per_tooth", nonneg=True)
     st, ex = engagement_angles(diameter, radial_depth, mode)
     return c * (math.cos(st) - math.cos(ex)) / (ex - st)
 

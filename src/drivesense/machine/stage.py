@@ -18,15 +18,7 @@ import numpy as np
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.friction import LuGreFriction, Ripple
 
-__all__ = ["StagePhysics", "pack_ripples"]
-
-
-def pack_ripples(ripples: tuple[Ripple, ...]) -> np.ndarray:
-    """Ripples as a flat ``[n, (wavelength, amplitude, phase)*n]`` array for compiled code."""
-    out = [float(len(ripples))]
-    for r in ripples:
-        out += [r.wavelength, r.amplitude, r.phase]
-    return np.asarray(out, dtype=np.float64)
+__all__ = ["StagePhysics"]
 
 
 @dataclass(frozen=True)
@@ -69,27 +61,31 @@ class StagePhysics:
     current_loop_extra_pole: float = 0.0
 
     def ideal(self) -> "StagePhysics":
-        """The estimators' own model: linear plant, no friction, cogging, lead error or droop."""
+        """The estimators' own model: linear plant, no friction, cogging, lead error, droop or second pole.
+
+        The physics part of :meth:`drivesense.sim.scenarios.ScenarioSettings.as_ideal`.
+
+        Returns
+        -------
+        StagePhysics
+        """
         return replace(self, motor_friction=None, guide_friction=None, cogging=(), lead_error=(),
                        kt_droop=0.0, current_loop_extra_pole=0.0)
 
     def varied(self, rng: np.random.Generator, spread: float = 0.02) -> "StagePhysics":
-        """A copy with run-to-run variation of the friction levels (relative ``spread``, 1 sigma)."""
+        """A copy with run-to-run variation of the friction levels.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of the variation (one normal draw per friction present).
+        spread : float
+            Relative variation, 1 sigma [-].
+
+        Returns
+        -------
+        StagePhysics
+        """
         mf = self.motor_friction.scaled(1.0 + spread * rng.standard_normal()) if self.motor_friction else None
         gf = self.guide_friction.scaled(1.0 + spread * rng.standard_normal()) if self.guide_friction else None
         return replace(self, motor_friction=mf, guide_friction=gf)
-
-    @staticmethod
-    def _pack_friction(f: LuGreFriction | None) -> np.ndarray:
-        if f is None:
-            return np.zeros(0)
-        return f.pack()
-
-    def pack(self) -> dict[str, np.ndarray]:
-        """Arrays for the compiled simulator (empty friction arrays mean no friction)."""
-        return {
-            "motor_friction": self._pack_friction(self.motor_friction),
-            "guide_friction": self._pack_friction(self.guide_friction),
-            "cogging": pack_ripples(self.cogging),
-            "lead_error": pack_ripples(self.lead_error),
-        }

@@ -55,9 +55,9 @@ class ElectretSensor:
     resonance_hz : float
         Diaphragm resonance [Hz].
     damping : float
-        Damping ratio of the resonance.
+        Damping ratio of the resonance [-].
     distortion : float
-        Quadratic term: relative distortion per 10 g of signal.
+        Quadratic term: relative distortion per 10 g of signal [-].
     saturation_g : float
         Soft saturation level [g].
     noise_v : float

@@ -14,12 +14,20 @@ z the tool axis), are rotated into machine axes along the path and applied to
 the axes with opposite sign; ``force_{ax}`` in the trace is the force on the
 workpiece, as a table-mounted dynamometer reads it.  A trace ends with the
 tool leaving the material (superposition of an entry at the far edge).
+
+The ideal-physics switch is :meth:`ProcessSettings.as_ideal` (``ideal=True``
+on :func:`simulate_process` and :func:`simulate_air_moves` routes to it):
+data from exactly the ModelBased model -- static Stribeck friction, the
+model's cogging table, no droop, current-loop lag, coupling, weight shift or
+run-to-run variation, no noise or quantisation, point samples of the true
+state and the unfiltered true force.  The ball-screw simulator has the same
+switch (:meth:`drivesense.sim.scenarios.ScenarioSettings.as_ideal`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -79,6 +87,10 @@ class ProcessSettings:
         Spindle motor torque constant [N*m/A].
     spindle_idle_current : float
         Spindle current at no load [A].
+    ideal : bool
+        Set by :meth:`as_ideal`: the simulation draws no run-to-run variation
+        (the rest of the ideal physics is in the physics and servo that
+        :meth:`as_ideal` reduces).
     """
 
     physics: LinearMachinePhysics = field(default_factory=linear_machine_physics)
@@ -93,6 +105,23 @@ class ProcessSettings:
     settle: float = 0.3
     spindle_kt: float = 0.6
     spindle_idle_current: float = 2.5
+    ideal: bool = False
+
+    def as_ideal(self) -> "ProcessSettings":
+        """Settings that reproduce the ModelBased model exactly (the ideal-physics switch).
+
+        The physics reduced to the model (:meth:`LinearMachinePhysics.ideal
+        <drivesense.machine.linear_motor.LinearMachinePhysics.ideal>`), the
+        servo without noise, quantisation or trace filters
+        (:meth:`LinearServoConfig.as_ideal
+        <drivesense.sim.linear_machine.LinearServoConfig.as_ideal>`), no
+        run-to-run variation (``ideal``).
+
+        Returns
+        -------
+        ProcessSettings
+        """
+        return replace(self, physics=self.physics.ideal(), servo=self.servo.as_ideal(), ideal=True)
 
 
 def process_names() -> list[str]:
@@ -365,7 +394,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     seed : int
         Seed of every random element (noise, run variation, spindle phase).
     ideal : bool
-        Data from exactly the ModelBased model (tests only).
+        Use ``settings.as_ideal()`` (:meth:`ProcessSettings.as_ideal`): data
+        from exactly the ModelBased model.
     settings : ProcessSettings, optional
         Machine, controller, tool and geometry (default: the preset, full physics).
     air : bool
@@ -383,6 +413,8 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
         ``score_window`` [s], ``nc_delay_s`` and the process parameters.
     """
     settings = settings or ProcessSettings()
+    if ideal:
+        settings = settings.as_ideal()
     if not isinstance(process, str) or process not in process_names():
         raise ConfigError(f"unknown process {process!r}; known: {', '.join(process_names())}")
     a_p = _check_param(a_p, "a_p", "m", 0.02)
@@ -396,9 +428,7 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
                                                        lambda tt: omega * tt + phase, rng)
     if air:     # computed and dropped, so that the random draws (noise, variation) match the cut's
         force, torque = np.zeros_like(force), np.zeros_like(torque)
-    physics = settings.physics.ideal() if ideal else settings.physics.varied(rng)
-    if ideal:
-        settings = _ideal_settings(settings, physics)
+    physics = settings.physics if settings.ideal else settings.physics.varied(rng)
     load = np.vstack([np.abs(force[1]) + np.abs(force[2]), np.abs(force[0]) + np.abs(force[2]),
                       np.abs(force[0]) + np.abs(force[1])])
     moving = [a for i, a in enumerate(AXES) if np.ptp(pos[i]) > 1e-4]
@@ -411,12 +441,6 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
             "provenance": [f"drivesense.sim.machining {process} seed {seed}"]}
     return _record(settings, physics, t, pos, vel, acc, force, load, int(rng.integers(2 ** 31)), meta,
                    spindle=(np.full(t.size, omega), torque))
-
-
-def _ideal_settings(settings: ProcessSettings, physics: LinearMachinePhysics) -> ProcessSettings:
-    from dataclasses import replace
-
-    return replace(settings, physics=physics, servo=settings.servo.as_ideal())
 
 
 def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, settings: ProcessSettings | None = None,
@@ -438,7 +462,7 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
     seed : int
         Seed of the first recording (each gets its own).
     ideal : bool
-        Data from exactly the ModelBased model (tests only).
+        Use ``settings.as_ideal()`` (:meth:`ProcessSettings.as_ideal`).
     settings : ProcessSettings, optional
         Machine and controller (default: the preset, full physics).
     travel_speeds : sequence of float
@@ -462,10 +486,12 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
         parameters (nominal values with this session's variation; SI).
     """
     settings = settings or ProcessSettings()
+    if ideal:
+        settings = settings.as_ideal()
     out = []
     fs = settings.servo.fs
     # one identification session: the run-to-run variation is drawn once for all its moves
-    session = settings.physics.ideal() if ideal else settings.physics.varied(np.random.default_rng(seed))
+    session = settings.physics if settings.ideal else settings.physics.varied(np.random.default_rng(seed))
     for ai, ax in enumerate(axes):
         if ax not in AXES:
             raise ConfigError(f"unknown axis {ax!r} in air moves (expected x, y or z)")
@@ -508,11 +534,10 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
             rng = np.random.default_rng(rseed)
             t, pos, vel, acc = prog.build(0.3)
             physics = session
-            use = _ideal_settings(settings, physics) if ideal else settings
             zeros = np.zeros((3, t.size))
             truth = {a: {k: v for k, v in physics.model().axis(a).to_dict().items() if k != "cogging"} for a in AXES}
             meta = {"name": f"air_{ax}_{label}", "kind": "air_move", "moving_axes": [ax], "program": label,
                     "true_model": truth,
                     "seed": int(rseed), "provenance": [f"drivesense.sim.machining air moves {ax}/{label}, seed {rseed}"]}
-            out.append(_record(use, physics, t, pos, vel, acc, zeros, zeros, int(rng.integers(2 ** 31)), meta))
+            out.append(_record(settings, physics, t, pos, vel, acc, zeros, zeros, int(rng.integers(2 ** 31)), meta))
     return out

@@ -11,6 +11,14 @@ a small axial depth so the force stays below the stage's kinetic friction.
 
 Each simulated trace holds the drive signals and the true process force on
 the table (``force_x`` ...), with its scoring window in the metadata.
+
+The ideal-physics switch is :meth:`ScenarioSettings.as_ideal` (``ideal=True``
+on every ``simulate_*`` function routes to it): data from exactly the
+estimators' own model -- the linear dual-inertia plant without friction,
+cogging, lead error, torque-constant droop or second current-loop pole,
+perfect encoders, no noise, coupling or run-to-run variation.  The
+linear-motor simulator has the same switch
+(:meth:`drivesense.sim.machining.ProcessSettings.as_ideal`).
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from drivesense.machine.friction import Ripple
+from drivesense.machine.friction import Ripple, ripple_values
 from drivesense.machine.milling import CuttingCoefficients, EndMill, MillingCut, feed_per_tooth, milling_forces
 from drivesense.machine.presets import table1_stage
 from drivesense.machine.stage import StagePhysics
@@ -89,7 +97,9 @@ class ScenarioSettings:
     run_spread : float
         Run-to-run friction variation, 1 sigma [-].
     ideal : bool
-        Generate data from exactly the estimators' model (tests only).
+        Set by :meth:`as_ideal`: the simulation draws no run-to-run
+        variation and uses perfect encoders (the rest of the ideal physics is
+        in the stage and servo that :meth:`as_ideal` strips).
     """
 
     stage: StagePhysics = field(default_factory=table1_stage)
@@ -104,14 +114,40 @@ class ScenarioSettings:
     ideal: bool = False
 
     def as_ideal(self) -> "ScenarioSettings":
-        """Settings that reproduce the estimators' own model exactly."""
-        servo = replace(self.servo, current_noise=0.0, current_sensor_noise=0.0)
-        return replace(self, stage=self.stage.ideal(), servo=servo, coupling_gain=0.0, run_spread=0.0,
-                       ideal=True)
+        """Settings that reproduce the estimators' own model exactly (the ideal-physics switch).
+
+        The stage reduced to the linear model (:meth:`StagePhysics.ideal
+        <drivesense.machine.stage.StagePhysics.ideal>`), no current noise
+        (:meth:`ServoConfig.as_ideal <drivesense.sim.servo.ServoConfig.as_ideal>`),
+        no coupling or run-to-run variation, perfect encoders (``ideal``).
+
+        Returns
+        -------
+        ScenarioSettings
+        """
+        return replace(self, stage=self.stage.ideal(), servo=self.servo.as_ideal(), coupling_gain=0.0,
+                       run_spread=0.0, ideal=True)
+
+
+def _settings(settings: ScenarioSettings | None, ideal: bool) -> ScenarioSettings:
+    """The settings a ``simulate_*`` call uses: the default, and :meth:`ScenarioSettings.as_ideal` if asked."""
+    settings = settings or ScenarioSettings()
+    return settings.as_ideal() if ideal else settings
 
 
 def paper_conditions(axial_depth: float = 0.5e-3) -> list[CutCondition]:
-    """The ten conditions of Figs. 15 (feed) and 21 (cross-feed)."""
+    """The ten conditions of Figs. 15 (feed) and 21 (cross-feed).
+
+    Parameters
+    ----------
+    axial_depth : float, optional
+        Axial depth of cut of every condition [m] (default 0.5 mm).
+
+    Returns
+    -------
+    list of CutCondition
+        The five feed-direction conditions, then the five cross-feed ones.
+    """
     feed = [(1.5, 1000), (1.5, 4000), (6.0, 1000), (1.5, 10000), (6.0, 10000)]
     cross = [(1.5, 1000), (1.5, 4000), (6.0, 4000), (1.5, 10000), (6.0, 10000)]
     out = []
@@ -131,7 +167,23 @@ def scenario_names() -> list[str]:
 
 
 def condition_by_name(name: str) -> tuple[CutCondition, bool]:
-    """Look up a scenario name; returns ``(condition, is_idle)``."""
+    """Look up a scenario name; returns ``(condition, is_idle)``.
+
+    Parameters
+    ----------
+    name : str
+        A condition name (``"feed_r6_S1000"``), optionally prefixed ``"idle_"``.
+
+    Returns
+    -------
+    condition : CutCondition
+    is_idle : bool
+
+    Raises
+    ------
+    KeyError
+        Listing the known names.
+    """
     idle = name.startswith("idle_")
     base = name[5:] if idle else name
     for c in paper_conditions():
@@ -140,10 +192,13 @@ def condition_by_name(name: str) -> tuple[CutCondition, bool]:
     raise KeyError(f"unknown scenario {name!r}; known: {', '.join(scenario_names())}")
 
 
+#: Friction ripple of the (unsimulated) Y drive [N] over its position [m].
+_Y_RIPPLE = (Ripple(5e-3, 3.0, 0.5), Ripple(1.25e-3, 1.0, 1.7))
+
+
 def _y_ripple(y: np.ndarray) -> np.ndarray:
     """Friction ripple of the (unsimulated) Y drive [N] versus its position [m]."""
-    rip = (Ripple(5e-3, 3.0, 0.5), Ripple(1.25e-3, 1.0, 1.7))
-    return sum(r.amplitude * np.sin(2 * math.pi * y / r.wavelength + r.phase) for r in rip)
+    return ripple_values(_Y_RIPPLE, y)
 
 
 def _process_forces(cond: CutCondition, settings: ScenarioSettings, times: np.ndarray, feed_axis, omega: float,
@@ -231,7 +286,8 @@ def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: boo
     return Recording.from_arrays(channels, fs=fs, meta=meta)
 
 
-def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *, seed: int = 0) -> Recording:
+def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *, seed: int = 0,
+                 ideal: bool = False) -> Recording:
     """Simulate one cutting test.
 
     Parameters
@@ -242,6 +298,9 @@ def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *
         Physics and signal chain (default: full physics of the Table 1 stage).
     seed : int
         Seed of every random element (noise, run variation, spindle phase).
+    ideal : bool
+        Use ``settings.as_ideal()`` (:meth:`ScenarioSettings.as_ideal`): data
+        from exactly the estimators' model.
 
     Returns
     -------
@@ -252,20 +311,38 @@ def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *
         ``force_x``, ``force_y``, ``force_z`` [N]; metadata include
         ``score_window`` and ``tare_window`` [s].
     """
-    settings = settings or ScenarioSettings()
-    return _run(cond, settings, seed, True, cond.name)
+    return _run(cond, _settings(settings, ideal), seed, True, cond.name)
 
 
 def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, *, repeats: int = 3,
-                  seed: int = 1000) -> list[Recording]:
-    """Idling runs: the cut's trajectory without cutting, ``repeats`` times (Sec. 4)."""
-    settings = settings or ScenarioSettings()
+                  seed: int = 1000, ideal: bool = False) -> list[Recording]:
+    """Idling runs: the cut's trajectory without cutting, ``repeats`` times (Sec. 4).
+
+    Parameters
+    ----------
+    cond : CutCondition
+        The cutting condition whose trajectory is repeated.
+    settings : ScenarioSettings, optional
+        Physics and signal chain (default: full physics of the Table 1 stage).
+    repeats : int
+        Number of runs.
+    seed : int
+        Seed of the first run (run ``k`` uses ``seed + k``).
+    ideal : bool
+        Use ``settings.as_ideal()`` (:meth:`ScenarioSettings.as_ideal`).
+
+    Returns
+    -------
+    list of Recording
+        Channels as :func:`simulate_cut`, forces zero.
+    """
+    settings = _settings(settings, ideal)
     return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}") for k in range(repeats)]
 
 
 def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings | None = None, *,
                             amplitude: float = 0.3, duration: float = 8.0, feed_speed: float = 10e-3,
-                            f0: float = 5.0, f1: float = 2000.0, seed: int = 0) -> Recording:
+                            f0: float = 5.0, f1: float = 2000.0, seed: int = 0, ideal: bool = False) -> Recording:
     """Excite the X axis through its current reference while it moves at constant speed.
 
     The axis moves at ``feed_speed`` (sliding friction, no stick-slip) under
@@ -288,6 +365,8 @@ def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings 
         Excitation band [Hz].
     seed : int
         Seed.
+    ideal : bool
+        Use ``settings.as_ideal()`` (:meth:`ScenarioSettings.as_ideal`).
 
     Returns
     -------
@@ -299,7 +378,7 @@ def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings 
     """
     from drivesense.sim.excitation import make_excitation
 
-    settings = settings or ScenarioSettings()
+    settings = _settings(settings, ideal)
     rng = np.random.default_rng(seed)
     cfg = settings.servo
     fs = cfg.fs

@@ -7,21 +7,32 @@ motor encoder, and a current reference sent through the driver's dead time
 pole).  The recorded encoder signals are delayed by ``T_b``.  The plant is
 integrated with ``substeps`` semi-implicit Euler steps per control period;
 LuGre bristles are integrated exactly over each sub-step.
+
+The friction, ripple and quantisation physics are the shared implementations
+of :mod:`drivesense.machine.friction` and :func:`drivesense.sim.encoders.quantise`
+(the linear-motor simulator uses the same ones).  The compiled loop reads its
+parameters from named tuples (:class:`StageParams`, :class:`ControlParams`,
+:class:`~drivesense.sim.encoders.EncoderParams`, :class:`~drivesense.sim.encoders.ScaleParams`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from drivesense.machine.friction import coulomb_level, lugre_step
+from drivesense.machine import friction
+from drivesense.machine.friction import LuGreFriction, LuGreParams, RippleParams, coulomb_level, lugre_step, \
+    ripple_params, ripple_sum
 from drivesense.machine.stage import StagePhysics
-from drivesense.sim.encoders import LinearScale, RotaryEncoder
+from drivesense.sim import encoders
+from drivesense.sim.encoders import LinearScale, RotaryEncoder, quantise
+from drivesense.sim.kernel_cache import source_digest
 
-__all__ = ["ServoConfig", "ServoResult", "run_servo"]
+__all__ = ["ServoConfig", "ServoResult", "StageParams", "ControlParams", "run_servo"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +76,142 @@ class ServoConfig:
     omega_cc: float = 5000.0
     current_noise: float = 2.0e-3
     current_sensor_noise: float = 5.0e-3
+
+    def as_ideal(self) -> "ServoConfig":
+        """The same controller without current noise (part of :meth:`ScenarioSettings.as_ideal
+        <drivesense.sim.scenarios.ScenarioSettings.as_ideal>`).
+
+        Returns
+        -------
+        ServoConfig
+        """
+        return replace(self, current_noise=0.0, current_sensor_noise=0.0)
+
+    def params(self, enabled: bool = True) -> "ControlParams":
+        """The settings as the named tuple the compiled loop reads.
+
+        Parameters
+        ----------
+        enabled : bool
+            Closed loop (False: only the current excitation drives the motor).
+
+        Returns
+        -------
+        ControlParams
+        """
+        return ControlParams(float(self.fs), int(self.substeps), float(self.position_gain),
+                             float(self.velocity_gain), float(self.velocity_integral),
+                             float(self.accel_feedforward_mass), float(self.T_a), float(self.T_b),
+                             float(self.omega_cc), float(self.current_noise), float(self.current_sensor_noise),
+                             bool(enabled))
+
+
+class ControlParams(NamedTuple):
+    """Controller and sampling settings for the compiled loop (see :meth:`ServoConfig.params`).
+
+    Attributes
+    ----------
+    fs : float
+        Control rate [Hz].
+    substeps : int
+        Plant steps per control period.
+    position_gain : float
+        Position-loop gain [1/s].
+    velocity_gain : float
+        Velocity-loop P gain [N/(m/s)].
+    velocity_integral : float
+        Velocity-loop integral gain [N/m].
+    accel_feedforward_mass : float
+        Acceleration feedforward mass [kg].
+    T_a, T_b : float
+        Driver and encoder dead times [s].
+    omega_cc : float
+        Current-loop bandwidth [rad/s].
+    current_noise, current_sensor_noise : float
+        Current disturbance and measurement noise, 1 sigma [A].
+    closed : bool
+        Closed loop.
+    """
+
+    fs: float
+    substeps: int
+    position_gain: float
+    velocity_gain: float
+    velocity_integral: float
+    accel_feedforward_mass: float
+    T_a: float
+    T_b: float
+    omega_cc: float
+    current_noise: float
+    current_sensor_noise: float
+    closed: bool
+
+
+class StageParams(NamedTuple):
+    """What the compiled loop reads of :class:`~drivesense.machine.stage.StagePhysics`.
+
+    The linear mechanics enter through the exact discretisation instead.
+
+    Attributes
+    ----------
+    K_r : float
+        Screw-nut stiffness [N/m] (turns the lead error into a force).
+    R : float
+        Table travel per motor radian ``lead / (2 pi)`` [m/rad].
+    K_t : float
+        Torque constant [N*m/A].
+    kt_droop : float
+        Relative fall of ``K_t`` at the rated current [-].
+    rated_current, max_current : float
+        Rated current and current limit [A].
+    extra_pole : float
+        Second current-loop pole [rad/s] (0: none).
+    has_motor_friction, has_guide_friction : bool
+        Whether each friction is present.
+    motor_friction, guide_friction : LuGreParams
+        Motor-side (coordinate ``x_m``) and guideway (``x_t``) friction.
+    cogging : RippleParams
+        Cogging force [N] over ``x_m`` [m].
+    lead_error : RippleParams
+        Screw lead error [m] over ``x_m`` [m].
+    """
+
+    K_r: float
+    R: float
+    K_t: float
+    kt_droop: float
+    rated_current: float
+    max_current: float
+    extra_pole: float
+    has_motor_friction: bool
+    motor_friction: LuGreParams
+    has_guide_friction: bool
+    guide_friction: LuGreParams
+    cogging: RippleParams
+    lead_error: RippleParams
+
+    @classmethod
+    def of(cls, stage: StagePhysics) -> "StageParams":
+        """Build from the stage physics (absent friction gets inert placeholder values).
+
+        Parameters
+        ----------
+        stage : StagePhysics
+
+        Returns
+        -------
+        StageParams
+        """
+        ax = stage.axis
+
+        def fric(f: LuGreFriction | None) -> LuGreParams:
+            return f.params() if f is not None else LuGreFriction(0.0, 0.0, 1.0, 1.0, 0.0).params()
+
+        return cls(float(ax.K_r), float(ax.R), float(ax.K_t), float(stage.kt_droop), float(stage.rated_current),
+                   float(stage.max_current), float(stage.current_loop_extra_pole),
+                   stage.motor_friction is not None, fric(stage.motor_friction),
+                   stage.guide_friction is not None, fric(stage.guide_friction),
+                   ripple_params(stage.cogging), ripple_params(stage.lead_error))
 
 
 @dataclass(frozen=True)
@@ -140,18 +287,8 @@ def run_servo(stage: StagePhysics, config: ServoConfig, position_ref, velocity_f
     if any(a.size != n for a in arrays):
         raise ValueError("run_servo: all input arrays must have the same length")
     fine = fine_force if fine_force.size != n else np.zeros(0)
-    ax = stage.axis
-    packed = stage.pack()
-    plant = np.array([ax.M_r, ax.M_t, ax.C_r, ax.C_t, ax.C_k, ax.K_r, ax.R, ax.K_t,
-                      stage.kt_droop, stage.rated_current, stage.max_current,
-                      stage.current_loop_extra_pole], dtype=np.float64)
-    ctrl = np.array([config.fs, float(config.substeps), config.position_gain, config.velocity_gain,
-                     config.velocity_integral, config.accel_feedforward_mass, config.T_a, config.T_b,
-                     config.omega_cc, config.current_noise, config.current_sensor_noise,
-                     1.0 if enabled else 0.0], dtype=np.float64)
-    phi, gamma = _exact_step(ax, 1.0 / (config.fs * config.substeps))
-    out = _servo_loop(plant, ctrl, phi, gamma, packed["motor_friction"], packed["guide_friction"],
-                      packed["cogging"], packed["lead_error"], encoder.pack(), scale.pack(),
+    phi, gamma = _exact_step(stage.axis, 1.0 / (config.fs * config.substeps))
+    out = _servo_loop(StageParams.of(stage), config.params(enabled), phi, gamma, encoder.params(), scale.params(),
                       *arrays, fine, np.int64(seed))
     return ServoResult(*out)
 
@@ -177,22 +314,6 @@ def _exact_step(axis, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
-def _ripple_sum(p: np.ndarray, x: float) -> float:
-    n = int(p[0])
-    s = 0.0
-    for k in range(n):
-        s += p[2 + 3 * k] * math.sin(2.0 * math.pi * x / p[1 + 3 * k] + p[3 + 3 * k])
-    return s
-
-
-@njit(cache=True)
-def _quantise(value: float, step: float) -> float:
-    if step > 0.0:
-        return math.floor(value / step + 0.5) * step
-    return value
-
-
-@njit(cache=True)
 def _interp_hist(hist: np.ndarray, pos: float) -> float:
     if pos <= 0.0:
         return hist[0]
@@ -203,140 +324,149 @@ def _interp_hist(hist: np.ndarray, pos: float) -> float:
     return hist[i] + frac * (hist[i + 1] - hist[i])
 
 
-@njit(cache=True)
-def _servo_loop(plant, ctrl, phi, gamma, fric_m, fric_g, cog, lead_err, enc, scl,
-                x_ref, v_ff, a_ff, f_ext, n_load, i_exc, f_fine, seed):
-    np.random.seed(seed)
-    K_r, R, K_t = plant[5], plant[6], plant[7]  # the linear mechanics are in phi/gamma
-    droop, i_rated, i_max, pole2 = plant[8], plant[9], plant[10], plant[11]
-    fs = ctrl[0]
-    nsub = int(ctrl[1])
-    Kp, Kvp, Kvi, m_ff = ctrl[2], ctrl[3], ctrl[4], ctrl[5]
-    T_a, T_b, w_cc = ctrl[6], ctrl[7], ctrl[8]
-    i_noise, i_sens_noise = ctrl[9], ctrl[10]
-    closed = ctrl[11] > 0.5
-    T = 1.0 / fs
-    dt = T / nsub
-    n = x_ref.size
-    has_fm = fric_m.size > 0
-    has_fg = fric_g.size > 0
+def _make_servo_loop(physics_source: str):
+    """Compile the loop with its on-disk cache tied to ``physics_source`` (:mod:`drivesense.sim.kernel_cache`)."""
 
-    out_iref = np.zeros(n)
-    out_ires = np.zeros(n)
-    out_theta = np.zeros(n)
-    out_xt = np.zeros(n)
-    true_xm = np.zeros(n)
-    true_xt = np.zeros(n)
-    true_vt = np.zeros(n)
+    @njit(cache=True)
+    def _servo_loop(sp, cp, phi, gamma, enc, scl, x_ref, v_ff, a_ff, f_ext, n_load, i_exc, f_fine, seed):
+        physics_source  # noqa: B018 -- part of numba's cache key (see drivesense.sim.kernel_cache)
+        np.random.seed(seed)
+        K_r, R, K_t = sp.K_r, sp.R, sp.K_t  # the linear mechanics are in phi/gamma
+        droop, i_rated, i_max, pole2 = sp.kt_droop, sp.rated_current, sp.max_current, sp.extra_pole
+        fric_m, fric_g, cog, lead_err = sp.motor_friction, sp.guide_friction, sp.cogging, sp.lead_error
+        fs = cp.fs
+        nsub = cp.substeps
+        Kp, Kvp, Kvi, m_ff = cp.position_gain, cp.velocity_gain, cp.velocity_integral, cp.accel_feedforward_mass
+        T_a, T_b, w_cc = cp.T_a, cp.T_b, cp.omega_cc
+        i_noise, i_sens_noise = cp.current_noise, cp.current_sensor_noise
+        closed = cp.closed
+        T = 1.0 / fs
+        dt = T / nsub
+        n = x_ref.size
+        has_fm = sp.has_motor_friction
+        has_fg = sp.has_guide_friction
 
-    # encoder model
-    enc_res, enc_periods, enc_noise = enc[0], enc[1], enc[2]
-    n_harm = int(enc[3])
-    scl_res, scl_noise = scl[0], scl[1]
+        out_iref = np.zeros(n)
+        out_ires = np.zeros(n)
+        out_theta = np.zeros(n)
+        out_xt = np.zeros(n)
+        true_xm = np.zeros(n)
+        true_xt = np.zeros(n)
+        true_vt = np.zeros(n)
 
-    # plant state: start at rest at the reference, spring unloaded
-    x_t = x_ref[0]
-    x_m = x_t - _ripple_sum(lead_err, x_t)
-    v_m = 0.0
-    v_t = 0.0
-    z_m = 0.0
-    z_g = 0.0
-    i1 = 0.0
-    i2 = 0.0
-    integ = 0.0
-    theta_prev = 0.0
-    a1 = math.exp(-w_cc * dt) if w_cc > 0.0 else 0.0
-    m1 = (1.0 - a1) / (w_cc * dt) if w_cc > 0.0 else 0.0  # mean of a first-order step response over dt
-    a2 = math.exp(-pole2 * dt) if pole2 > 0.0 else 0.0
-    tb_samples = T_b * fs
-    ta_samples = T_a * fs
+        # encoder model
+        enc_res, enc_periods, enc_noise = enc.resolution, enc.signal_periods, enc.noise
+        n_harm = enc.interpolation_error.size
+        scl_res, scl_noise = scl.resolution, scl.noise
 
-    for k in range(n):
-        true_xm[k] = x_m
-        true_xt[k] = x_t
-        true_vt[k] = v_t
-        # ---- measurement (delayed by T_b)
-        pos = k - tb_samples
-        xm_d = _interp_hist(true_xm, pos)
-        xt_d = _interp_hist(true_xt, pos)
-        theta = xm_d / R
-        err = 0.0
-        for h in range(n_harm):
-            err += enc[4 + h] * math.sin((h + 1) * enc_periods * theta)
-        theta_meas = _quantise(theta + err + enc_noise * np.random.standard_normal(), enc_res)
-        xt_meas = _quantise(xt_d + scl_noise * np.random.standard_normal(), scl_res)
-        if k == 0:
+        # plant state: start at rest at the reference, spring unloaded
+        x_t = x_ref[0]
+        x_m = x_t - ripple_sum(lead_err, x_t)
+        v_m = 0.0
+        v_t = 0.0
+        z_m = 0.0
+        z_g = 0.0
+        i1 = 0.0
+        i2 = 0.0
+        integ = 0.0
+        theta_prev = 0.0
+        a1 = math.exp(-w_cc * dt) if w_cc > 0.0 else 0.0
+        m1 = (1.0 - a1) / (w_cc * dt) if w_cc > 0.0 else 0.0  # mean of a first-order step response over dt
+        a2 = math.exp(-pole2 * dt) if pole2 > 0.0 else 0.0
+        tb_samples = T_b * fs
+        ta_samples = T_a * fs
+
+        for k in range(n):
+            true_xm[k] = x_m
+            true_xt[k] = x_t
+            true_vt[k] = v_t
+            # ---- measurement (delayed by T_b)
+            pos = k - tb_samples
+            xm_d = _interp_hist(true_xm, pos)
+            xt_d = _interp_hist(true_xt, pos)
+            theta = xm_d / R
+            err = 0.0
+            for h in range(n_harm):
+                err += enc.interpolation_error[h] * math.sin((h + 1) * enc_periods * theta)
+            theta_meas = quantise(theta + err + enc_noise * np.random.standard_normal(), enc_res)
+            xt_meas = quantise(xt_d + scl_noise * np.random.standard_normal(), scl_res)
+            if k == 0:
+                theta_prev = theta_meas
+            # ---- control
+            v_cmd = v_ff[k] + Kp * (x_ref[k] - xt_meas)
+            v_meas = (theta_meas - theta_prev) * R * fs
             theta_prev = theta_meas
-        # ---- control
-        v_cmd = v_ff[k] + Kp * (x_ref[k] - xt_meas)
-        v_meas = (theta_meas - theta_prev) * R * fs
-        theta_prev = theta_meas
-        e = v_cmd - v_meas
-        integ += Kvi * e * T
-        f_cmd = Kvp * e + integ + m_ff * a_ff[k]
-        i_ref = f_cmd * R / K_t + i_exc[k]
-        if i_ref > i_max:
-            i_ref = i_max
-        elif i_ref < -i_max:
-            i_ref = -i_max
-        if not closed:
-            i_ref = i_exc[k]
-            integ = 0.0
-        out_iref[k] = i_ref
-        out_theta[k] = theta_meas
-        out_xt[k] = xt_meas
-        out_ires[k] = (i2 if pole2 > 0.0 else i1) + i_sens_noise * np.random.standard_normal()
+            e = v_cmd - v_meas
+            integ += Kvi * e * T
+            f_cmd = Kvp * e + integ + m_ff * a_ff[k]
+            i_ref = f_cmd * R / K_t + i_exc[k]
+            if i_ref > i_max:
+                i_ref = i_max
+            elif i_ref < -i_max:
+                i_ref = -i_max
+            if not closed:
+                i_ref = i_exc[k]
+                integ = 0.0
+            out_iref[k] = i_ref
+            out_theta[k] = theta_meas
+            out_xt[k] = xt_meas
+            out_ires[k] = (i2 if pole2 > 0.0 else i1) + i_sens_noise * np.random.standard_normal()
 
-        # ---- position-dependent terms, once per control period
-        cog_f = _ripple_sum(cog, x_m)
-        lead = _ripple_sum(lead_err, x_m)
-        i_dist = i_noise * np.random.standard_normal()
-        f0 = f_ext[k]
-        f1 = f_ext[k + 1] if k + 1 < n else f0
-        load = n_load[k]
-        fc_m = coulomb_level(fric_m, x_m, 0.0) if has_fm else 0.0
-        fc_g = coulomb_level(fric_g, x_t, load) if has_fg else 0.0
-        # ---- plant sub-steps
-        for j in range(nsub):
-            t_rel = k + j / nsub - ta_samples  # driver input index (zero-order hold)
-            idx = int(math.floor(t_rel + 1e-9))
-            i_in = out_iref[idx] if idx >= 0 else 0.0
-            # the linear mechanics are stepped exactly (phi, gamma); everything else is held over the
-            # sub-step at its mean (current) or start value (friction, cogging, lead error)
-            if pole2 > 0.0:
-                i_start = i2
-                i1 = i_in + (i1 - i_in) * a1
-                i2 = i1 + (i2 - i1) * a2
-                i_act = 0.5 * (i_start + i2)
-            else:
-                i_act = i_in + (i1 - i_in) * m1
-                i1 = i_in + (i1 - i_in) * a1
-            i_act += i_dist
-            kt = K_t * (1.0 - droop * (i_act / i_rated) ** 2)
-            f_motor = kt * i_act / R + cog_f
-            if has_fm:
-                z_m, ff_m = lugre_step(fric_m, z_m, v_m, fc_m, dt)
-            else:
-                ff_m = 0.0
-            if has_fg:
-                z_g, ff_g = lugre_step(fric_g, z_g, v_t, fc_g, dt)
-            else:
-                ff_g = 0.0
-            if f_fine.size > 0:
-                i_f = k * nsub + j
-                f_cut = 0.5 * (f_fine[i_f] + f_fine[i_f + 1]) if i_f + 1 < f_fine.size else f_fine[i_f]
-            else:  # Catmull-Rom through the neighbouring samples, at the sub-step midpoint
-                u = (j + 0.5) / nsub
-                fm1 = f_ext[k - 1] if k > 0 else f0
-                f2 = f_ext[k + 2] if k + 2 < n else f1
-                f_cut = 0.5 * (2.0 * f0 + (f1 - fm1) * u + (2.0 * fm1 - 5.0 * f0 + 4.0 * f1 - f2) * u * u
-                               + (3.0 * f0 - fm1 - 3.0 * f1 + f2) * u * u * u)
-            u_m = f_motor - ff_m - K_r * lead
-            u_t = f_cut - ff_g + K_r * lead
-            x_m, x_t, v_m, v_t = (
-                phi[0, 0] * x_m + phi[0, 1] * x_t + phi[0, 2] * v_m + phi[0, 3] * v_t + gamma[0, 0] * u_m + gamma[0, 1] * u_t,
-                phi[1, 0] * x_m + phi[1, 1] * x_t + phi[1, 2] * v_m + phi[1, 3] * v_t + gamma[1, 0] * u_m + gamma[1, 1] * u_t,
-                phi[2, 0] * x_m + phi[2, 1] * x_t + phi[2, 2] * v_m + phi[2, 3] * v_t + gamma[2, 0] * u_m + gamma[2, 1] * u_t,
-                phi[3, 0] * x_m + phi[3, 1] * x_t + phi[3, 2] * v_m + phi[3, 3] * v_t + gamma[3, 0] * u_m + gamma[3, 1] * u_t,
-            )
-    return out_iref, out_ires, out_theta, out_xt, true_xm, true_xt, true_vt
+            # ---- position-dependent terms, once per control period
+            cog_f = ripple_sum(cog, x_m)
+            lead = ripple_sum(lead_err, x_m)
+            i_dist = i_noise * np.random.standard_normal()
+            f0 = f_ext[k]
+            f1 = f_ext[k + 1] if k + 1 < n else f0
+            load = n_load[k]
+            fc_m = coulomb_level(fric_m, x_m, 0.0) if has_fm else 0.0
+            fc_g = coulomb_level(fric_g, x_t, load) if has_fg else 0.0
+            # ---- plant sub-steps
+            for j in range(nsub):
+                t_rel = k + j / nsub - ta_samples  # driver input index (zero-order hold)
+                idx = int(math.floor(t_rel + 1e-9))
+                i_in = out_iref[idx] if idx >= 0 else 0.0
+                # the linear mechanics are stepped exactly (phi, gamma); everything else is held over the
+                # sub-step at its mean (current) or start value (friction, cogging, lead error)
+                if pole2 > 0.0:
+                    i_start = i2
+                    i1 = i_in + (i1 - i_in) * a1
+                    i2 = i1 + (i2 - i1) * a2
+                    i_act = 0.5 * (i_start + i2)
+                else:
+                    i_act = i_in + (i1 - i_in) * m1
+                    i1 = i_in + (i1 - i_in) * a1
+                i_act += i_dist
+                kt = K_t * (1.0 - droop * (i_act / i_rated) ** 2)
+                f_motor = kt * i_act / R + cog_f
+                if has_fm:
+                    z_m, ff_m = lugre_step(fric_m, z_m, v_m, fc_m, dt)
+                else:
+                    ff_m = 0.0
+                if has_fg:
+                    z_g, ff_g = lugre_step(fric_g, z_g, v_t, fc_g, dt)
+                else:
+                    ff_g = 0.0
+                if f_fine.size > 0:
+                    i_f = k * nsub + j
+                    f_cut = 0.5 * (f_fine[i_f] + f_fine[i_f + 1]) if i_f + 1 < f_fine.size else f_fine[i_f]
+                else:  # Catmull-Rom through the neighbouring samples, at the sub-step midpoint
+                    u = (j + 0.5) / nsub
+                    fm1 = f_ext[k - 1] if k > 0 else f0
+                    f2 = f_ext[k + 2] if k + 2 < n else f1
+                    f_cut = 0.5 * (2.0 * f0 + (f1 - fm1) * u + (2.0 * fm1 - 5.0 * f0 + 4.0 * f1 - f2) * u * u
+                                   + (3.0 * f0 - fm1 - 3.0 * f1 + f2) * u * u * u)
+                u_m = f_motor - ff_m - K_r * lead
+                u_t = f_cut - ff_g + K_r * lead
+                x_m, x_t, v_m, v_t = (
+                    phi[0, 0] * x_m + phi[0, 1] * x_t + phi[0, 2] * v_m + phi[0, 3] * v_t + gamma[0, 0] * u_m + gamma[0, 1] * u_t,
+                    phi[1, 0] * x_m + phi[1, 1] * x_t + phi[1, 2] * v_m + phi[1, 3] * v_t + gamma[1, 0] * u_m + gamma[1, 1] * u_t,
+                    phi[2, 0] * x_m + phi[2, 1] * x_t + phi[2, 2] * v_m + phi[2, 3] * v_t + gamma[2, 0] * u_m + gamma[2, 1] * u_t,
+                    phi[3, 0] * x_m + phi[3, 1] * x_t + phi[3, 2] * v_m + phi[3, 3] * v_t + gamma[3, 0] * u_m + gamma[3, 1] * u_t,
+                )
+        return out_iref, out_ires, out_theta, out_xt, true_xm, true_xt, true_vt
+
+    return _servo_loop
+
+
+_servo_loop = _make_servo_loop(source_digest(friction, encoders))

@@ -47,7 +47,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from drivesense.errors import ConfigError
-from drivesense.identify.coefficients import CutTable
+from drivesense.machine.cutting_power import CutTable
 from drivesense.machine.cutting_power import CutConditions
 from drivesense.machine.milling import CuttingCoefficients, milling_forces
 
@@ -99,7 +99,7 @@ class WearExperiment:
     axial_depth : float
         Axial depth of cut [m] (not in Table 1: 2.54 mm assumed).
     nominal_calibrations : float
-        Median life in calibration intervals (assumption, see the module notes).
+        Median life in calibration intervals [-] (assumption, see the module notes).
     """
 
     name: str
@@ -508,7 +508,7 @@ def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb:
         Tool runout [m] instead of the tool's random one (0: Eq. 2 holds exactly, only noise remains).
     measured_runout : float, optional
         Also return the runout as a user would measure it
-        (:class:`~drivesense.identify.tool_runout.ToolRunout`): the true offset with a dial
+        (:class:`~drivesense.machine.tool_runout.ToolRunout`): the true offset with a dial
         indicator's error of this standard deviation [m], and the phase with an error of that
         error over the offset [rad] (at least 0.1 rad, at most pi).
 
@@ -543,7 +543,7 @@ def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb:
     table = CutTable(tuple(cuts), np.array(power), name=f"calibration {exp.name}, seed {seed}")
     if measured_runout is None:
         return table, (ktc, kte)
-    from drivesense.identify.tool_runout import ToolRunout
+    from drivesense.machine.tool_runout import ToolRunout
 
     err = np.random.default_rng([seed, *exp.name.encode(), 2]).normal(0.0, 1.0, 2)
     phase_sd = min(math.pi, max(0.1, measured_runout / max(tool.runout, 1e-9)))

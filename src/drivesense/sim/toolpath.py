@@ -80,6 +80,20 @@ def constant_feed(duration: float, fs: float, speed: float, *, start: float = 0.
 
 
 def standstill(duration: float, fs: float, *, position: float = 0.0) -> Trajectory:
-    """An axis held at ``position`` [m] for ``duration`` [s]."""
+    """An axis held at ``position`` [m] for ``duration`` [s].
+
+    Parameters
+    ----------
+    duration : float
+        Length of the trajectory [s].
+    fs : float
+        Sample rate [Hz].
+    position : float, optional
+        Held position [m].
+
+    Returns
+    -------
+    Trajectory
+    """
     n = int(round(duration * fs))
     return Trajectory(np.full(n, float(position)), np.zeros(n), np.zeros(n), fs, (0.0, duration))
