@@ -9,10 +9,12 @@ import pytest
 from typer.testing import CliRunner
 
 from drivesense.cli import app
-from drivesense.cli.plot_cmd import feed_speed_of, plot_trace_spectrum
+from drivesense.cli.plot_cmd import feed_speed_of
 from drivesense.errors import ConfigError
 from drivesense.io.xml_format import write_xml
+from drivesense.plot import plot_trace_spectrum, save_figure
 from drivesense.recording import Recording
+from drivesense.io import write_recording
 
 runner = CliRunner()
 FEED = 0.002  # m/s (120 mm/min)
@@ -59,14 +61,18 @@ def test_wavelength_axis_puts_the_ripple_at_its_wavelength(feed_rec, tmp_path, m
 
     orig = matplotlib.axes.Axes.loglog
     monkeypatch.setattr(matplotlib.axes.Axes, "loglog", spy)
-    path = plot_trace_spectrum(feed_rec.slice_time(0.2, None), "x_current", tmp_path / "w.png", wavelength=True)
+    rec = feed_rec.slice_time(0.2, None)
+    feed, how = feed_speed_of(rec, "x_current")
+    fig = plot_trace_spectrum(rec, "x_current", wavelength=True, feed_speed=feed, feed_source=how)
+    assert "x_table_position" in fig.axes[1].get_xlabel()
+    path = save_figure(fig, tmp_path / "w.png")
     assert _png(path) == (1100, 770)
     peak = seen["x"][np.argmax(seen["y"])]
     assert peak == pytest.approx(WAVE * 1e3, rel=0.02)  # [mm]
 
 
 def test_cli_plot_time_and_spectrum(feed_rec, tmp_path):
-    feed_rec.save(tmp_path / "r.nc")
+    write_recording(feed_rec, tmp_path / "r.nc")
     res = runner.invoke(app, ["plot", str(tmp_path / "r.nc"), "--channel", "x_current"])
     assert res.exit_code == 0, res.output
     assert _png(tmp_path / "r_x_current.png") == (1100, 770)
@@ -94,7 +100,7 @@ def test_cli_plot_reads_experiment_files(feed_rec, tmp_path):
     (["-c", "x_current", "--measurement", "1"], "--measurement applies to .xml"),
 ])
 def test_cli_plot_bad_input_is_one_line(feed_rec, tmp_path, args, message):
-    feed_rec.save(tmp_path / "r.nc")
+    write_recording(feed_rec, tmp_path / "r.nc")
     res = runner.invoke(app, ["plot", str(tmp_path / "r.nc"), *args, "--out", str(tmp_path / "o.png")])
     if message is None:
         assert res.exit_code == 0, res.output

@@ -30,8 +30,7 @@ from drivesense.score import score_estimate
 from drivesense.sim.machining import ProcessSettings, simulate_air_moves, simulate_process
 
 __all__ = ["LINEAR_CASES", "run_linear_axis_bench", "identification_table", "score_process", "session_truth",
-           "reversal_scores",
-           "plot_pocket_estimate", "plot_force_estimate"]
+           "reversal_scores"]
 
 #: Processes of the benchmark: (process, a_e [mm], a_p [mm], v_f [mm/min], n [1/min]), after Table 2.
 LINEAR_CASES = (
@@ -228,7 +227,9 @@ def run_linear_axis_bench(progress: Callable[[str], None] | None = None, *, seed
             progress(proc)
     figures = []
     if figure is not None and pocket is not None:
-        figures.append(str(plot_pocket_estimate(pocket[0], pocket[1], figure)))
+        from drivesense.plot import plot_pocket_estimate, save_figure
+
+        figures.append(str(save_figure(plot_pocket_estimate(pocket[0], pocket[1]), figure)))
     const = [r for r in rows if r["moving"] and r["process"].split("_")[0] in ("groove", "side")]
     const_all = [r for r in rows if r["process"].split("_")[0] in ("groove", "side")]
     standing = [r for r in rows if not r["moving"]]
@@ -269,73 +270,3 @@ def _lugre_scale(settings: ProcessSettings, truth: ThreeAxisModel, ax: str) -> l
         return None
     a = truth.axis(ax)
     return [a.F_C / fr.sigma0, a.F_br / fr.sigma0]
-
-
-def plot_pocket_estimate(trace: Recording, estimate: Recording, path: str | Path) -> Path:
-    """Figure of a circular pocket: ModelBased estimate vs true force, x and y (like the paper's Fig. 6).
-
-    Parameters
-    ----------
-    trace : Recording
-        Simulated pocket trace (``force_x``, ``force_y``, ``score_window``).
-    estimate : Recording
-        ModelBased output for it.
-    path : str or Path
-        PNG to write.
-
-    Returns
-    -------
-    Path
-    """
-    return plot_force_estimate(trace, estimate, path, axes=("x", "y"),
-                               title=f"{trace.meta.get('name', 'pocket')}: force on the workpiece (full physics)")
-
-
-def plot_force_estimate(trace: Recording, estimate: Recording, path: str | Path, *, axes=None,
-                        title: str | None = None) -> Path:
-    """Estimate vs reference force per axis (estimate alone where the trace has no reference).
-
-    Parameters
-    ----------
-    trace : Recording
-        The NC trace (``force_{ax}`` if a reference exists; ``meta["score_window"]`` shaded).
-    estimate : Recording
-        ModelBased output.
-    path : str or Path
-        PNG to write.
-    axes : sequence of str, optional
-        Axes to plot (default: every ``force_{ax}`` of the estimate).
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.plot import _pyplot
-
-    plt = _pyplot()
-    axes = tuple(axes or [c.split("_", 1)[1] for c in estimate.channels if c.startswith("force_")])
-    lat = float(estimate.meta.get("latency_s", 0.0))
-    window = tuple(trace.meta.get("score_window", (trace.t0, trace.t0 + trace.duration)))
-    fig, panels = plt.subplots(len(axes), 1, figsize=(9, 2.6 * len(axes) + 0.6), sharex=True, squeeze=False)
-    for ax_plot, ax in zip(panels[:, 0], axes):
-        ch = f"force_{ax}"
-        label = f"{ax}"
-        ax_plot.plot(estimate.time, estimate[ch], color="tab:red", lw=0.9, label="ModelBased")
-        if ch in trace.channels:
-            s = score_estimate(estimate, trace, channel=ch, window=window)
-            ax_plot.plot(trace.time + lat, trace[ch], color="black", lw=0.6, alpha=0.8,
-                         label="reference (delayed by the latency)")
-            label += f": RMSE {s.rmse_n:.1f} N, NRMSE {s.nrmse * 100:.1f} %"
-        if "score_window" in trace.meta:
-            ax_plot.axvspan(*window, color="0.92", zorder=0)
-        ax_plot.set_ylabel(f"F_{ax} [N]")
-        ax_plot.set_title(label, fontsize=9)
-        ax_plot.legend(loc="upper right", fontsize=8)
-    panels[-1, 0].set_xlabel("time [s]")
-    if title:
-        fig.suptitle(title, fontsize=10)
-    from drivesense.plot import _save
-
-    return _save(plt, fig, path)

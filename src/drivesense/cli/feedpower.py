@@ -30,8 +30,7 @@ def fit(
     plot: Annotated[Optional[Path], typer.Option(help="Write force vs cutting power per speed (Fig. 14).")] = None,
 ) -> None:
     """Calibrate efficiency versus slide speed from cuts with a reference force; write MODEL.json."""
-    from drivesense.identify.feed_power import cross_validate, fit_feed_power, per_speed_fits, plot_feed_power, \
-        read_feed_cuts
+    from drivesense.identify.feed_power import cross_validate, fit_feed_power, per_speed_fits, read_feed_cuts
 
     data = read_feed_cuts(cuts)
     model = fit_feed_power(data)
@@ -54,7 +53,10 @@ def fit(
     info = {"cuts": str(cuts), "model": model.to_dict(), "per_speed": [s.__dict__ for s in per_speed_fits(data)],
             "cross_validation": cv, "model_file": str(model_path)}
     if plot:
-        plot_feed_power(data, model, plot, title=f"Feed-drive power to x-force: {cuts.name}")
+        from drivesense.plot import plot_feed_power, save_figure
+
+        fig = plot_feed_power(data, model, per_speed_fits(data), title=f"Feed-drive power to x-force: {cuts.name}")
+        save_figure(fig, plot)
         info["plot"] = str(plot)
         console.print(f"wrote {plot}")
     write_json(json_path, info)

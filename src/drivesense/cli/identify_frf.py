@@ -75,9 +75,9 @@ def identify_frf(
                   f"{fit.seconds:.2f} s; T_comp = T_a + T_b = {fit.signal.T_comp * 1e3:.4f} ms")
     console.print(f"wrote {out}")
     if plot:
-        from drivesense.plot import plot_frf_fit
+        from drivesense.plot import plot_frf_fit, save_figure
 
-        plot_frf_fit(fit, plot)
+        save_figure(plot_frf_fit(fit), plot)
         console.print(f"wrote {plot}")
     write_json(json_path, {"trace": str(trace), "axis_file": str(out), **fit.to_dict()})
 

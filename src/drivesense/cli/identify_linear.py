@@ -81,9 +81,9 @@ def identify_linear(
     console.print("seconds per axis: " + ", ".join(f"{k} {v:.3f}" for k, v in report.seconds.items()))
     console.print(f"wrote {out}")
     if plot:
-        from drivesense.identify.linear_axis import plot_identification
+        from drivesense.plot import plot_identification, save_figure
 
-        plot_identification(report, plot)
+        save_figure(plot_identification(report), plot)
         console.print(f"wrote {plot}")
     write_json(json_path, {"air_moves": [str(p) for p in air_moves], "axes_file": str(out), **report.to_dict()})
 
@@ -95,7 +95,6 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     ``est`` is a ModelBased, LSTM or Hybrid estimator (anything with ``name``
     and ``estimate(recording)`` returning ``force_x/y/z``).
     """
-    from drivesense.bench.linear_axis import plot_force_estimate
     from drivesense.io import write_csv
     from drivesense.score import score_estimate
 
@@ -121,7 +120,9 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     console.print(table)
     console.print(f"wrote {out}")
     if plot:
-        plot_force_estimate(rec, force, plot, title=f"{est.name} estimate: {trace.name}")
+        from drivesense.plot import plot_force_estimate, save_figure
+
+        save_figure(plot_force_estimate(rec, force, title=f"{est.name} estimate: {trace.name}"), plot)
         info["plot"] = str(plot)
     write_json(json_path, info)
 

@@ -16,9 +16,7 @@ import typer
 
 from drivesense.cli.common import console, friendly
 
-__all__ = ["register", "plot_trace_spectrum", "feed_speed_of"]
-
-_MAX_POINTS = 100_000
+__all__ = ["register", "feed_speed_of"]
 
 
 def feed_speed_of(rec, channel: str) -> tuple[float, str]:
@@ -72,81 +70,6 @@ def _moving_speed(v: np.ndarray, fs: float, name: str) -> tuple[float, str]:
     return float(np.median(moving)), f"median speed of {name} while moving"
 
 
-def _envelope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Min/max per bucket so a long trace plots fast without hiding peaks."""
-    if y.size <= _MAX_POINTS:
-        return t, y
-    k = int(np.ceil(y.size / (_MAX_POINTS // 2)))
-    n = y.size // k * k
-    tt = np.repeat(t[:n:k], 2)
-    yy = np.column_stack([y[:n].reshape(-1, k).min(axis=1), y[:n].reshape(-1, k).max(axis=1)]).ravel()
-    return tt, yy
-
-
-def plot_trace_spectrum(rec, channel: str, path, *, wavelength: bool = False, feed_speed: float | None = None,
-                        max_freq: float | None = None, title: str | None = None) -> Path:
-    """Write a PNG: the channel's time trace (top) and amplitude spectrum (bottom).
-
-    Parameters
-    ----------
-    rec : Recording
-    channel : str
-        Channel to plot.
-    path : str or Path
-        Output PNG.
-    wavelength : bool, optional
-        Spectrum against wavelength = feed speed / frequency [mm] instead of frequency [Hz].
-    feed_speed : float, optional
-        Feed speed [m/s] for `wavelength`; default :func:`feed_speed_of`.
-    max_freq : float, optional
-        Upper end of the frequency axis [Hz] (default fs/2).
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.dsp import amplitude_spectrum, dominant_wavelengths
-    from drivesense.errors import ConfigError
-    from drivesense.plot import _pyplot, _save
-
-    rec.require(channel)
-    y, unit = np.asarray(rec[channel]), rec.units(channel)
-    f, amp = amplitude_spectrum(y, rec.fs)
-    plt = _pyplot()
-    fig, (ax_t, ax_f) = plt.subplots(2, 1, figsize=(10, 7))
-    ax_t.plot(*_envelope(rec.time, y), lw=0.7, color="tab:blue")
-    ax_t.set_xlabel("time [s]")
-    ax_t.set_ylabel(f"{channel} [{unit}]")
-    ax_t.grid(alpha=0.3)
-    keep = f > 0
-    if wavelength:
-        how = "given"
-        if feed_speed is None:
-            feed_speed, how = feed_speed_of(rec, channel)
-        if not feed_speed > 0:
-            raise ConfigError(f"--feed must be a positive speed in m/s, got {feed_speed!r}")
-        lam = feed_speed / f[keep] * 1e3
-        ax_f.loglog(lam, amp[keep], lw=0.8, color="tab:red")
-        ax_f.set_xlabel(f"wavelength = feed speed / frequency [mm]   (feed {feed_speed * 6e4:.4g} mm/min, {how})")
-        x_peak = lam
-    else:
-        sel = keep & (f <= (max_freq or 0.5 * rec.fs))
-        ax_f.semilogy(f[sel], amp[sel], lw=0.8, color="tab:red")
-        ax_f.set_xlabel("frequency [Hz]")
-        x_peak, keep = f[sel], sel
-    for rank, peak in enumerate(dominant_wavelengths(x_peak, amp[keep], n=3, min_separation=0.05)):
-        ax_f.annotate(f"{peak['wavelength_m']:.4g} {'mm' if wavelength else 'Hz'}",
-                      (peak["wavelength_m"], peak["amplitude"]), textcoords="offset points",
-                      xytext=(6, 2 - 11 * rank), fontsize=8, arrowprops={"arrowstyle": "-", "lw": 0.5})
-    ax_f.set_ylabel(f"amplitude [{unit}]")
-    ax_f.grid(alpha=0.3, which="both")
-    fig.suptitle(title or f"{rec.name or ''} {channel}: {rec.n_samples} samples @ {rec.fs:g} Hz "
-                          f"(flat-top amplitude spectrum)".strip())
-    return _save(plt, fig, path)
-
-
 def _read(file: Path, measurement: Optional[str]):
     from drivesense.cli.common import read_trace
     from drivesense.errors import ConfigError
@@ -174,9 +97,21 @@ def plot(
     = None,
 ) -> None:
     """Time trace and amplitude spectrum of one channel in one PNG."""
+    from drivesense.errors import ConfigError
+    from drivesense.plot import plot_trace_spectrum, save_figure
+
     rec = _read(file, measurement)
     out = out or file.with_name(f"{file.stem}_{channel}{'_wavelength' if wavelength else ''}.png")
-    path = plot_trace_spectrum(rec, channel, out, wavelength=wavelength, feed_speed=feed, max_freq=max_freq)
+    rec.require(channel)
+    how = "given"
+    if wavelength:
+        if feed is None:
+            feed, how = feed_speed_of(rec, channel)
+        if not feed > 0:
+            raise ConfigError(f"--feed must be a positive speed in m/s, got {feed!r}")
+    fig = plot_trace_spectrum(rec, channel, wavelength=wavelength, feed_speed=feed, feed_source=how,
+                              max_freq=max_freq)
+    path = save_figure(fig, out)
     console.print(f"wrote {path}", markup=False, highlight=False)
 
 

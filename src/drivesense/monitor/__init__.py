@@ -2,7 +2,7 @@
 
 from drivesense.monitor.runout import RunoutEstimate, estimate_runout
 from drivesense.monitor.wear import (WearReport, WearState, WearTracker, WearTrackerSettings, percent_power_increase,
-                                     plot_wear_track, track_wear)
+                                     track_wear)
 
 __all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "track_wear", "percent_power_increase",
-           "plot_wear_track", "RunoutEstimate", "estimate_runout"]
+           "RunoutEstimate", "estimate_runout"]

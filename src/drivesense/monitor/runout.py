@@ -34,19 +34,19 @@ class RunoutEstimate:
     Attributes
     ----------
     amplitude : float
-        Amplitude A of order 1, in the signal's unit (m/s^2, N or m).
+        Amplitude A of order 1 [signal unit: m/s^2, N or m].
     phase : float
         Phase [rad]: the component is ``A cos(theta - phase)``.
     amplitude_se : float
-        Standard error of A from the fit residual, same unit.
+        Standard error of A from the fit residual [signal unit].
     frequency : float
         Mean spindle frequency [Hz].
     revolutions : float
-        Revolutions in the analysed signal.
+        Revolutions in the analysed signal [-].
     displacement : float or None
         Runout amplitude [m] (None for a force signal without a stiffness).
     harmonics : ndarray
-        Amplitudes of orders 1..K, signal unit.
+        Amplitudes of orders 1..K [signal unit].
     kind : str
         ``acceleration``, ``force`` or ``displacement``.
     """

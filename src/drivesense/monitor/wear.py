@@ -32,10 +32,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.identify.coefficients import CutTable, TangentialFit
+from drivesense.identify.coefficients import CutTable, TangentialFit, fit_cut_table
 
-__all__ = ["WearTrackerSettings", "WearState", "WearTracker", "WearReport", "track_wear", "percent_power_increase",
-           "plot_wear_track"]
+__all__ = ["WearTrackerSettings", "WearState", "WearTracker", "WearReport", "track_wear", "percent_power_increase"]
 
 STATES = ("new", "progressing", "near end of life")
 
@@ -49,23 +48,23 @@ class WearTrackerSettings:
     baseline : int
         Calibrations averaged as the new-tool reference, >= 1.
     z : float
-        Significance, in standard errors, that every rise or drop must reach.
+        Significance, in standard errors [-], that every rise or drop must reach.
     progressing_rise : float
-        Relative rise of F_ref that marks ``progressing``.
+        Relative rise of F_ref [-] that marks ``progressing``.
     acceleration : float
-        Ratio of recent to earlier growth rate of F_ref that marks the accelerating stage.
+        Ratio of recent to earlier growth rate of F_ref [-] that marks the accelerating stage.
     window : int
         Calibrations in the recent growth-rate fit, >= 2.
     min_history : int
         Calibrations needed before the acceleration test runs.
     ktc_rise : float
-        Relative rise of K_tc over the new tool that marks ``near end of life`` under flank wear.
+        Relative rise of K_tc over the new tool [-] that marks ``near end of life`` under flank wear.
     chip_ktc_rise : float
-        The same under chipping (each chip raises K_tc, so the end comes at a larger rise).
+        The same under chipping [-] (each chip raises K_tc, so the end comes at a larger rise).
     chip_drop : float
-        Fraction of its rise K_te must lose from its peak to count as chipping.
+        Fraction of its rise K_te must lose from its peak to count as chipping [-].
     excess : float
-        Level above the extrapolated straight-line trend, as a fraction of the rise so far, that
+        Level above the extrapolated straight-line trend, as a fraction of the rise so far [-], that
         marks the accelerating stage.
     """
 
@@ -466,70 +465,10 @@ def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
 
     for k, (d, idx) in enumerate(groups):
         try:
-            fit = table.fit(idx, warn=warn, runout=runout)
+            fit = fit_cut_table(table, idx, warn=warn, runout=runout)
         except IdentificationError as exc:
             raise IdentificationError(f"calibration {k} (distance {d:.4g} m): {exc}") from None
         match = [i for i in idx if _condition_key(table.cuts[i]) == ref_key]
         tracker.update(fit, d, float(table.cutting_power[match[0]]) if match else None)
         fits.append(fit)
     return WearReport(tracker.history, fits, float(tracker.h_ref), int(first[ref_local]), table.name)
-
-
-def plot_wear_track(report: WearReport, path, *, truth: dict | None = None, failure_distance: float | None = None,
-                    title: str | None = None):
-    """Write a PNG of the coefficients against cut distance (Fig. 11 style) with the state and the percent power.
-
-    Parameters
-    ----------
-    report : WearReport
-        The tracked session.
-    path : str or Path
-        Output PNG.
-    truth : dict, optional
-        Simulated truth per calibration (``distance`` [m], ``Ktc`` [N/m^2], ``Kte`` [N/m]) to overlay.
-    failure_distance : float, optional
-        Where the tool failed [m] (a vertical line).
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    pathlib.Path
-    """
-    from drivesense.plot import _pyplot, _save
-
-    plt = _pyplot()
-    st = report.states
-    d = np.array([s.distance for s in st])
-    fig, (ax_tc, ax_te, ax_p) = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
-    ax_tc.errorbar(d, [s.Ktc * 1e-6 for s in st], [s.Ktc_se * 1e-6 for s in st], fmt="o-", color="tab:red",
-                   ms=4, lw=1, capsize=2, label="K_tc (calibrated)")
-    ax_te.errorbar(d, [s.Kte * 1e-3 for s in st], [s.Kte_se * 1e-3 for s in st], fmt="s-", color="tab:blue",
-                   ms=4, lw=1, capsize=2, label="K_te (calibrated)")
-    if truth is not None:
-        ax_tc.plot(truth["distance"], np.asarray(truth["Ktc"]) * 1e-6, color="0.4", ls="--", lw=1, label="truth")
-        ax_te.plot(truth["distance"], np.asarray(truth["Kte"]) * 1e-3, color="0.4", ls="--", lw=1, label="truth")
-    pct = [(s.distance, s.percent_power) for s in st if s.percent_power is not None]
-    if pct:
-        ax_p.plot(*zip(*pct), "d-", color="tab:purple", ms=4, lw=1, label="reference cut")
-    ax_p.plot(d, [100 * (s.force_ref / st[0].force_ref - 1) for s in st], color="tab:green", lw=1,
-              label=f"F_ref at h = {report.h_ref * 1e3:.3g} mm")
-    colours = {"new": "#e8f5e9", "progressing": "#fff8e1", "near end of life": "#ffebee"}
-    edges = np.concatenate([[d[0]], 0.5 * (d[1:] + d[:-1]), [d[-1]]]) if len(d) > 1 else np.array([d[0], d[0] + 1])
-    for ax in (ax_tc, ax_te, ax_p):
-        for s, a, b in zip(st, edges[:-1], edges[1:]):
-            ax.axvspan(a, b, color=colours[s.state], lw=0)
-        if report.alarm_distance is not None:
-            ax.axvline(report.alarm_distance, color="tab:red", lw=1.5, ls=":")
-        if failure_distance is not None:
-            ax.axvline(failure_distance, color="black", lw=1.5)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
-    ax_tc.set_ylabel("K_tc [N/mm²]")
-    ax_te.set_ylabel("K_te [N/mm]")
-    ax_p.set_ylabel("power increase [%]")
-    ax_p.set_xlabel("cut distance [m]   (green: new, yellow: progressing, red: near end of life; "
-                    "dotted: alarm" + (", black: failure)" if failure_distance is not None else ")"))
-    fig.suptitle(title or f"{report.name}: {report.state}, mode {report.mode}"
-                 + (f", alarm at {report.alarm_distance:.3g} m" if report.alarm_distance is not None else ""))
-    return _save(plt, fig, path)
