@@ -28,6 +28,7 @@ from drivesense.cli import app
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError, MissingChannelError
 from drivesense.io.xml_format import Experiment, read_experiment, read_xml, write_xml
 from drivesense.recording import Recording
+from drivesense.io import read_recording, write_recording
 
 runner = CliRunner()
 _FORK = multiprocessing.get_context("fork")
@@ -87,7 +88,7 @@ def test_add_show_load_export_remove_roundtrip(store, tmp_path):
     back = read_experiment(out)
     assert back.id == eid and back.recordings[0].equals(rec)
     store.export(eid, tmp_path / "back.nc")
-    assert Recording.load(tmp_path / "back.nc").equals(rec)
+    assert read_recording(tmp_path / "back.nc").equals(rec)
     store.remove(eid)
     assert store.count() == 0 and set(_rows(store).values()) == {0}
 
@@ -323,7 +324,7 @@ def test_cli_user_story_archive_search_export_import(tmp_path, monkeypatch):
     files = []
     for k, mat in enumerate(("aluminium", "brass", "steel")):
         rec = _rec(k, material=mat, condition={"feed_speed": 0.001 * (k + 1), "mode": "down"})
-        rec.save(tmp_path / f"r{k}.nc")
+        write_recording(rec, tmp_path / f"r{k}.nc")
         files.append(str(tmp_path / f"r{k}.nc"))
     res = runner.invoke(app, ["archive", "add", *files, "--json", "-"])
     assert res.exit_code == 0, res.output
@@ -341,8 +342,8 @@ def test_cli_user_story_archive_search_export_import(tmp_path, monkeypatch):
     assert runner.invoke(app, ["archive", "export", ids[1][:8], "--out", str(out)]).exit_code == 0
     res = runner.invoke(app, ["xml", "import", str(out), "--out", str(tmp_path / "brass.nc")])
     assert res.exit_code == 0, res.output
-    assert Recording.load(tmp_path / "brass.nc").equals(Recording.load(files[1]))
-    assert read_xml(out).equals(Recording.load(files[1]))
+    assert read_recording(tmp_path / "brass.nc").equals(read_recording(files[1]))
+    assert read_xml(out).equals(read_recording(files[1]))
     assert runner.invoke(app, ["archive", "rm", ids[0]]).exit_code == 0
     res = runner.invoke(app, ["archive", "show", ids[0]])
     assert res.exit_code == 2 and "no experiment" in res.output

@@ -11,8 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from drivesense.cli import app
-from drivesense.io import read_csv, write_csv
-from drivesense.recording import Recording
+from drivesense.io import read_csv, read_recording, write_csv, write_recording
 from drivesense.sim.scenarios import ScenarioSettings, paper_conditions, simulate_cut, simulate_idle
 
 runner = CliRunner()
@@ -35,12 +34,12 @@ def work(tmp_path_factory) -> Path:
     write_csv(cut.select("x_current_ref", "x_motor_angle", "x_table_position", "force_x"), d / "cross.csv",
               units=USER_UNITS)
     feed_cut = simulate_cut(feed, short, seed=4)
-    feed_cut.save(d / "feed.nc")
+    write_recording(feed_cut, d / "feed.nc")
     for k, rec in enumerate(simulate_idle(feed, short, repeats=2, seed=50)):
-        rec.save(d / f"idle{k}.nc")
+        write_recording(rec, d / f"idle{k}.nc")
     # an idle run over a shorter stretch of travel: does not cover the cut
     half = simulate_idle(feed, replace(short, duration=1.2), repeats=1, seed=60)[0]
-    half.save(d / "idle_short.nc")
+    write_recording(half, d / "idle_short.nc")
     return d
 
 
@@ -86,7 +85,7 @@ def test_simulate_list_and_file(work):
     assert res.exit_code == 0 and "cross_r6_S10000" in res.output and "idle_feed_r1.5_S1000" in res.output
     res = invoke("simulate", "feed_r1.5_S4000", "--out", work / "sim.nc")
     assert res.exit_code == 0, res.output
-    rec = Recording.load(work / "sim.nc")
+    rec = read_recording(work / "sim.nc")
     assert {"x_current_ref", "x_motor_angle", "x_table_position", "force_x"} <= set(rec.channels)
 
 

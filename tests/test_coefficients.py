@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from drivesense.cli import app
 from drivesense.errors import ConfigError, IdentificationError, InvalidSignalError, UnitError
-from drivesense.identify.coefficients import (CutTable, SeeSawWarning, average_power, calibrate_from_power,
+from drivesense.identify.coefficients import (CutTable, SeeSawWarning, average_power, calibrate_from_power, fit_cut_table,
                                               fit_tangential_coefficients, read_cut_table)
 from drivesense.machine.cutting_power import CutConditions, cutting_power
 from drivesense.recording import Recording
@@ -72,7 +72,7 @@ def test_simulated_noisy_calibration_recovers_within_5_percent():
     from drivesense.sim.tool_life import section4_calibration, simulate_calibration
 
     table, (ktc, kte) = simulate_calibration(section4_calibration(), seed=3, repeats=10, runout=0.0)
-    fit = table.fit(warn=False)
+    fit = fit_cut_table(table, warn=False)
     assert abs(fit.Ktc / ktc - 1) < 0.05 and abs(fit.Kte / kte - 1) < 0.05
 
 
@@ -115,7 +115,7 @@ def test_read_cut_table_converts_units_and_recovers_the_coefficients(tmp_path):
     table = read_cut_table(write_table(tmp_path / "cuts.csv", cuts, cutting_power(KTC, KTE, cuts)))
     assert len(table) == 16 and table.calibration is None
     assert table.cuts[5].feed_per_tooth == pytest.approx(cuts[5].feed_per_tooth, rel=1e-12)
-    fit = table.fit()
+    fit = fit_cut_table(table)
     assert fit.Ktc == pytest.approx(KTC, rel=1e-9) and fit.Kte == pytest.approx(KTE, rel=1e-9)
 
 
@@ -187,7 +187,7 @@ def test_cli_calibrate_bad_input_exits_2(tmp_path):
 
 def test_runout_free_bases_are_eq_2_and_measured_runout_removes_the_bias():
     """Without runout the mechanistic bases are Q and A_c; with runout, giving it to the fit removes the K_te bias."""
-    from drivesense.identify.tool_runout import ToolRunout, power_bases
+    from drivesense.machine.tool_runout import ToolRunout, power_bases
     from drivesense.machine.milling import CuttingCoefficients, milling_forces
     from drivesense.sim.tool_life import section4_calibration
 

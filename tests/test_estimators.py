@@ -27,7 +27,6 @@ from drivesense.machine.presets import table1_axis, table1_stage
 from drivesense.recording import Recording
 from drivesense.score import score_estimate
 from drivesense.sim.encoders import LinearScale, RotaryEncoder
-from drivesense.sim.scenarios import ScenarioSettings, condition_by_name, simulate_cut, simulate_idle
 from drivesense.sim.servo import ServoConfig, run_servo
 
 AXIS = table1_axis()
@@ -62,23 +61,22 @@ def phasor(x: np.ndarray, t: np.ndarray, f: float) -> complex:
 
 
 # ------------------------------------------------------------------ fixtures
-def _scenario(name: str, settings: ScenarioSettings) -> dict:
-    cond = condition_by_name(name)[0]
-    cut = simulate_cut(cond, settings)
-    idle = simulate_idle(cond, settings) if cond.direction == "feed" else None
-    return {"cut": cut, "idle": idle}
+def _scenario(paper_scenario, name: str, ideal: bool) -> dict:
+    """The cut and (feed direction) its idling runs, shared for the session (conftest)."""
+    s = paper_scenario(name, ideal=ideal)
+    return {"cut": s.cut, "idle": s.idle}
 
 
 @pytest.fixture(scope="module")
-def ideal():
-    s = ScenarioSettings().as_ideal()
-    return {FEED: _scenario(FEED, s), CROSS: _scenario(CROSS, s)}
+def ideal(paper_scenario):
+    """``ScenarioSettings().as_ideal()``: data from exactly the estimators' model."""
+    return {FEED: _scenario(paper_scenario, FEED, True), CROSS: _scenario(paper_scenario, CROSS, True)}
 
 
 @pytest.fixture(scope="module")
-def full():
-    s = ScenarioSettings()
-    return {FEED: _scenario(FEED, s), CROSS: _scenario(CROSS, s)}
+def full(paper_scenario):
+    """``ScenarioSettings()``: the full physics of the Table 1 stage."""
+    return {FEED: _scenario(paper_scenario, FEED, False), CROSS: _scenario(paper_scenario, CROSS, False)}
 
 
 # ------------------------------------------------------------ ideal physics
@@ -223,7 +221,7 @@ def test_stream_equals_batch_fixed_chunks(full, fitted_full, cls):
     batch = est.estimate(cut)["force_x"]
     cur, ang, tab = (cut[c] for c in est.channel_names)
     state = est.stream(cut.fs)
-    out = np.concatenate([state.push_arrays(cur[i:i + 10], ang[i:i + 10], tab[i:i + 10])
+    out = np.concatenate([state.push_arrays(cur[i:i + 10], ang[i:i + 10], tab[i:i + 10])["force_x"]
                           for i in range(0, cut.n_samples, 10)])
     assert out.shape == batch.shape
     np.testing.assert_array_equal(out, batch)
@@ -241,7 +239,7 @@ def test_stream_equals_batch_random_chunks(full, fitted_full, cls):
     while bounds[-1] < cut.n_samples:
         bounds.append(min(bounds[-1] + int(rng.integers(0, 700)), cut.n_samples))  # 0-length chunks too
     state = est.stream(cut.fs)
-    parts = [state.push_arrays(cur[a:b], ang[a:b], tab[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    parts = [state.push_arrays(cur[a:b], ang[a:b], tab[a:b])["force_x"] for a, b in zip(bounds[:-1], bounds[1:])]
     out = np.concatenate(parts)
     assert np.abs(out - batch).max() <= 1e-9
     np.testing.assert_array_equal(out, batch)
@@ -263,11 +261,11 @@ def test_stream_recording_and_mapping_chunks(full, fitted_full, cls):
             assert out.t0 == pytest.approx(chunk.t0) and out.n_samples == chunk.n_samples
             assert out.meta["latency_s"] == pytest.approx(batch.meta["latency_s"])
             got.append(out["force_x"])
-        else:  # a plain mapping with bare channel names gives a bare array
+        else:  # a plain mapping (bare channel names) gives a dict of arrays
             out = state.push({"current_ref": chunk["x_current_ref"], "motor_angle": chunk["x_motor_angle"],
                               "table_position": chunk["x_table_position"]})
-            assert isinstance(out, np.ndarray)
-            got.append(out)
+            assert isinstance(out, dict) and list(out) == ["force_x"]
+            got.append(out["force_x"])
     np.testing.assert_array_equal(np.concatenate(got), batch["force_x"])
     with pytest.raises(MissingChannelError, match="table_position"):
         state.push({"current_ref": np.zeros(3), "motor_angle": np.zeros(3)})
@@ -280,10 +278,10 @@ def test_stream_state_does_not_grow(cls):
     rng = np.random.default_rng(0)
     chunk = [rng.normal(size=10), rng.normal(size=10) * 1e-3, rng.normal(size=10) * 1e-6]
     state.push_arrays(*chunk)
-    shapes = (state._state.hist.shape, state._state.zi.shape, state._state.scalars.shape)
+    shapes = (state.state.hist.shape, state.state.zi.shape, state.state.scalars.shape)
     for _ in range(10_000):
         state.push_arrays(*chunk)
-    assert (state._state.hist.shape, state._state.zi.shape, state._state.scalars.shape) == shapes
+    assert (state.state.hist.shape, state.state.zi.shape, state.state.scalars.shape) == shapes
     assert state.samples_seen == 10 * 10_001
 
 

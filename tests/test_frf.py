@@ -14,6 +14,7 @@ from drivesense.errors import ConfigError, IdentificationError
 from drivesense.identify.frf import MeasuredFRF, fit_frf, measure_frf, model_frf
 from drivesense.sim.excitation import chirp, make_excitation, multisine, prbs
 from drivesense.sim.scenarios import ScenarioSettings, simulate_frf_excitation
+from drivesense.io import write_recording
 
 AXIS = ds.table1_axis()
 TRUE_TB = 0.2e-3
@@ -124,7 +125,7 @@ def test_multisine_is_flat_in_band():
 
 def test_cli_identify_frf_writes_a_usable_axis_file(tmp_path, chirp_trace):
     runner = CliRunner()
-    chirp_trace.save(tmp_path / "frf.nc")
+    write_recording(chirp_trace, tmp_path / "frf.nc")
     res = runner.invoke(app, ["identify", "frf", str(tmp_path / "frf.nc"), "--fix", "K_t=0.45,lead=0.005",
                               "--out", str(tmp_path / "axis.toml"), "--json", str(tmp_path / "fit.json"),
                               "--plot", str(tmp_path / "frf.png")])
@@ -140,7 +141,7 @@ def test_cli_identify_frf_writes_a_usable_axis_file(tmp_path, chirp_trace):
 @pytest.mark.parametrize("fix, expect", [("lead=0.005", "K_t"), ("K_t=0.45,lead", "NAME=VALUE"),
                                          ("K_t=abc,lead=0.005", "not a number")])
 def test_cli_identify_frf_bad_fix(tmp_path, chirp_trace, fix, expect):
-    chirp_trace.save(tmp_path / "frf.nc")
+    write_recording(chirp_trace, tmp_path / "frf.nc")
     res = CliRunner().invoke(app, ["identify", "frf", str(tmp_path / "frf.nc"), "--fix", fix,
                                    "--out", str(tmp_path / "axis.toml")])
     assert res.exit_code == 2 and expect in " ".join(res.output.split())

@@ -13,28 +13,30 @@ import pytest
 
 from drivesense.errors import CoverageError
 from drivesense.estimate import MEDOB, CurrentOnly, RigidBody, SignalParams, VibrationMode
-from drivesense.identify.friction import FrictionMap, build_friction_map
+from drivesense.estimate.friction_map import FrictionMap, build_friction_map
 from drivesense.machine.presets import table1_axis
 from drivesense.recording import Recording
-from drivesense.sim.scenarios import condition_by_name, simulate_cut, simulate_idle
+from drivesense.sim.scenarios import simulate_idle
 
 AXIS = table1_axis()
 METHODS = [CurrentOnly, RigidBody, MEDOB, VibrationMode]
 
 
 @pytest.fixture(scope="module")
-def cond():
-    return condition_by_name("feed_r1.5_S4000")[0]
+def cond(paper_scenario):
+    return paper_scenario("feed_r1.5_S4000").cond
 
 
 @pytest.fixture(scope="module")
-def idle(cond) -> list[Recording]:
-    return simulate_idle(cond, repeats=3)
+def idle(paper_scenario) -> tuple[Recording, ...]:
+    """``simulate_idle(cond, repeats=3)``, shared for the session (conftest)."""
+    return paper_scenario("feed_r1.5_S4000").idle
 
 
 @pytest.fixture(scope="module")
-def cut(cond) -> Recording:
-    return simulate_cut(cond)
+def cut(paper_scenario) -> Recording:
+    """``simulate_cut(cond)`` (conftest)."""
+    return paper_scenario("feed_r1.5_S4000").cut
 
 
 @pytest.fixture(scope="module")
@@ -191,3 +193,22 @@ def test_fit_and_tare_replace_each_other(idle, cut):
     assert est.friction_map is not None and "friction map" in repr(est)
     est.tare(cut, *cut.meta["tare_window"])
     assert est.friction_map is None and est.friction.values.size == 1
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.__name__)
+def test_own_map_leaves_no_force_on_its_own_idle_runs(idle, cls):
+    """The map is read through the method's own kernel: applied by that method, it cancels the idle runs
+    it was built from, to the run-to-run spread (and to far less with one run)."""
+    est = cls(AXIS).fit(idle)
+    one = cls(AXIS).fit(idle[:1])
+    for k, run in enumerate(idle):
+        cruise = run.time > run.t0 + 0.6
+        raw = cls(AXIS).estimate(run)["force_x"][cruise]
+        left = est.estimate(run)["force_x"][cruise]
+        rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731
+        assert rms(left) < 0.1 * rms(raw), (cls.__name__, k, rms(left), rms(raw))
+        assert rms(left) < 2.0 * est.friction_map.repeatability_rms + 0.5, (cls.__name__, k)
+    own = idle[0].time > idle[0].t0 + 0.6
+    left_one = one.estimate(idle[0])["force_x"][own]
+    raw_one = cls(AXIS).estimate(idle[0])["force_x"][own]
+    assert np.sqrt(np.mean(left_one ** 2)) < 0.03 * np.sqrt(np.mean(raw_one ** 2)), cls.__name__

@@ -17,9 +17,10 @@ from drivesense.sim.machining import simulate_process
 torch = pytest.importorskip("torch")
 
 from drivesense.cli import app  # noqa: E402
-from drivesense.estimate.hybrid import Hybrid  # noqa: E402
-from drivesense.estimate.lstm import LSTM  # noqa: E402
+from drivesense.learn import Hybrid  # noqa: E402
+from drivesense.learn import LSTM  # noqa: E402
 from drivesense.learn.train import TrainConfig  # noqa: E402
+from drivesense.io import write_recording
 
 TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_in=30, mc_samples=4, seed=1,
                   lr_decay=0.5, lr_patience=0)   # the schedule runs (decays after every epoch without improvement)
@@ -117,7 +118,7 @@ def test_cli_train_and_estimate(tiny, tmp_path):
                                    "--epochs", "1", "--json", str(tmp_path / "t.json")])
     assert res.exit_code == 0, res.output
     assert json.loads((tmp_path / "t.json").read_text())["kind"] == "lstm"
-    runs[0].save(tmp_path / "trace.nc")
+    write_recording(runs[0], tmp_path / "trace.nc")
     res = CliRunner().invoke(app, ["estimate", str(tmp_path / "trace.nc"), "--method", "lstm", "--model",
                                    str(tmp_path / "m"), "--out", str(tmp_path / "f.csv"), "--json", str(tmp_path / "e.json")])
     assert res.exit_code == 0, res.output

@@ -23,7 +23,7 @@ from drivesense.identify.linear_axis import (constant_velocity_segments, directi
 from drivesense.io.axes_file import read_axes_file
 from drivesense.machine.linear_motor import AXES, linear_machine_model
 from drivesense.recording import Recording
-from drivesense.sim.machining import simulate_air_moves
+from drivesense.io import write_recording
 
 FS = 250.0
 TRUE = linear_machine_model()
@@ -171,8 +171,9 @@ def test_bad_inputs():
 
 # ------------------------------------------------------------------ the full physics
 @pytest.fixture(scope="module")
-def air():
-    return simulate_air_moves(seed=7)
+def air(linear_air_moves):
+    """``simulate_air_moves(seed=7)``, shared for the session (conftest)."""
+    return linear_air_moves
 
 
 def test_identification_on_simulated_air_moves_meets_the_targets(air):
@@ -195,7 +196,7 @@ def test_cli_identify_linear(air, tmp_path):
     paths = []
     for rec in air:
         paths.append(tmp_path / f"{rec.name}.nc")
-        rec.save(paths[-1])
+        write_recording(rec, paths[-1])
     res = runner.invoke(app, ["identify", "linear", *map(str, paths), "--out", str(tmp_path / "AXES.toml"),
                               "--json", str(tmp_path / "id.json"), "--plot", str(tmp_path / "id.png")])
     assert res.exit_code == 0, res.output

@@ -12,7 +12,7 @@ from drivesense.bench.linear_axis import score_process
 from drivesense.cli import app
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError, NotFittedError
 from drivesense.estimate.model_based import ModelBased
-from drivesense.io import read_csv
+from drivesense.io import read_csv, write_recording
 from drivesense.io.axes_file import write_axes_file
 from drivesense.machine.linear_motor import linear_machine_model
 from drivesense.sim.machining import simulate_process
@@ -45,7 +45,7 @@ def test_full_physics_constant_feed_within_ten_percent(groove):
 def test_stream_equals_batch_to_the_bit(groove):
     est = ModelBased(TRUE)
     batch = est.estimate(groove)
-    stream = est.stream(groove.fs, latency_s=groove.meta["nc_delay_s"])
+    stream = est.stream(groove.fs, delay_s=groove.meta["nc_delay_s"])
     edges = [0, 1, 2, 7, 64, 65, 300, 901, groove.n_samples]
     parts = {c: [] for c in est.output_channels}
     for a, b in zip(edges[:-1], edges[1:]):
@@ -68,7 +68,7 @@ def test_clear_errors(groove):
     with pytest.raises(MissingChannelError, match="'y_velocity'"):
         est.estimate(lacking)
     assert set(ModelBased(TRUE, axes=("x",)).estimate(lacking).channels) == {"force_x"}
-    stream = est.stream()
+    stream = est.stream(groove.fs)
     chunk = {c: groove[c][:10] for c in est.channel_names}
     with pytest.raises(MissingChannelError, match="'z_current'"):
         stream.push({k: v for k, v in chunk.items() if k != "z_current"})
@@ -87,7 +87,7 @@ def test_clear_errors(groove):
 def test_cli_estimate_method_model(groove, tmp_path):
     runner = CliRunner()
     axes = write_axes_file(tmp_path / "AXES.toml", TRUE)
-    groove.save(tmp_path / "groove.nc")
+    write_recording(groove, tmp_path / "groove.nc")
     out = tmp_path / "force.csv"
     res = runner.invoke(app, ["estimate", str(tmp_path / "groove.nc"), "--method", "model", "--axes", str(axes),
                               "--out", str(out), "--json", str(tmp_path / "est.json"),
@@ -102,12 +102,12 @@ def test_cli_estimate_method_model(groove, tmp_path):
     assert (tmp_path / "est.png").stat().st_size > 10_000
     # bad input: one line, exit 2
     for args, text in (([], "needs --axes"),
-                       (["--axes", str(axes), "--idle", str(tmp_path / "groove.nc")], "not --axis/--idle/--tare"),
+                       (["--axes", str(axes), "--idle", str(tmp_path / "groove.nc")], "takes no --idle/--tare"),
                        (["--axes", str(tmp_path / "nope.toml")], "does not exist")):
         res = runner.invoke(app, ["estimate", str(tmp_path / "groove.nc"), "--method", "model",
                                   "--out", str(tmp_path / "bad.csv"), *args])
         assert res.exit_code == 2 and text in res.output and res.output.count("\n") == 1, res.output
-    groove.select("x_current", "x_position").save(tmp_path / "thin.nc")
+    write_recording(groove.select("x_current", "x_position"), tmp_path / "thin.nc")
     res = runner.invoke(app, ["estimate", str(tmp_path / "thin.nc"), "--method", "model", "--axes", str(axes),
                               "--out", str(tmp_path / "bad.csv")])
     assert res.exit_code == 2 and "x_velocity" in res.output

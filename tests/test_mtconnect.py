@@ -26,7 +26,7 @@ from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.io.mtconnect import AgentError, parse_devices, parse_shdr, parse_streams, parse_timestamp
 from drivesense.io.mtconnect_client import MTConnectClient, StreamLog
 from drivesense.io.mtconnect_resample import read_mtconnect, to_recording
-from drivesense.recording import Recording
+from drivesense.io import read_recording
 
 DATA = Path(__file__).parent / "data" / "mtconnect"
 runner = CliRunner()
@@ -290,10 +290,10 @@ def test_cli_probe_and_import(agent, tmp_path):
     res = runner.invoke(app, ["mtconnect", "import", str(DATA / "adapter.shdr"), "--devices", str(DATA / "devices.xml"),
                               "--out", str(out), "--method", "hold"])
     assert res.exit_code == 0, res.output
-    assert Recording.load(out).meta["mtconnect"]["gaps"]["spindle_speed"] == [[0.997, 1.097]]
+    assert read_recording(out).meta["mtconnect"]["gaps"]["spindle_speed"] == [[0.997, 1.097]]
     res = runner.invoke(app, ["mtconnect", "import", url, "--out", str(tmp_path / "live.nc"), "--count", "300",
                               "--fs", "500"])
     assert res.exit_code == 0, res.output
-    assert Recording.load(tmp_path / "live.nc").fs == 500.0
+    assert read_recording(tmp_path / "live.nc").fs == 500.0
     res = runner.invoke(app, ["mtconnect", "import", str(DATA / "devices.xml"), "--out", str(tmp_path / "x.nc")])
     assert res.exit_code == 2 and "not MTConnectStreams" in res.output

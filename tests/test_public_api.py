@@ -49,8 +49,8 @@ def test_public_callable_documents_every_parameter(name, obj):
     assert inspect.getdoc(obj), f"{name} has no docstring"
     missing = _documented(obj)
     # estimator subclasses document their constructor on the shared base class
-    if missing and inspect.isclass(obj) and issubclass(obj, ds.estimate.LinearForceEstimator):
-        missing = [m for m in missing if m not in inspect.getdoc(ds.estimate.LinearForceEstimator)]
+    if missing and inspect.isclass(obj) and issubclass(obj, ds.estimate.BallScrewEstimator):
+        missing = [m for m in missing if m not in inspect.getdoc(ds.estimate.BallScrewEstimator)]
     assert not missing, f"{name}: undocumented parameter(s) {missing}"
 
 

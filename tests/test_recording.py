@@ -13,7 +13,7 @@ from drivesense.errors import (
     TimebaseError,
     UnitError,
 )
-from drivesense.io import load_netcdf, read_csv, read_recording, write_csv
+from drivesense.io import load_netcdf, read_csv, read_recording, write_csv, write_recording
 from drivesense.recording import Recording, validate_timebase
 
 DATA = Path(__file__).parent / "data"
@@ -152,10 +152,10 @@ def test_save_load_round_trip_is_bit_exact(tmp_path):
     rec = Recording.from_arrays(
         {"x_current_ref": np.random.default_rng(2).normal(size=777),
          "force_x": np.geomspace(1e-300, 1e300, 777)}, fs=1 / 3e-4, t0=-0.1, meta=meta)
-    out = rec.save(tmp_path / "rec.nc")
+    out = write_recording(rec, tmp_path / "rec.nc")
     assert out == tmp_path / "rec.nc"
     assert [p.name for p in tmp_path.iterdir()] == ["rec.nc"]  # no temp file left
-    back = Recording.load(out)
+    back = read_recording(out)
     assert back.equals(rec)
     assert back.meta == meta and back.fs == rec.fs and back.t0 == rec.t0
     np.testing.assert_array_equal(back.time, rec.time)
@@ -258,9 +258,9 @@ def test_write_read_csv_round_trip(tmp_path):
     assert exact.fs == rec.fs and exact.t0 == rec.t0
     for c in rec.channels:
         np.testing.assert_array_equal(exact[c], rec[c])
-    out = rec.to_csv(tmp_path / "user.csv", units={"time": "ms", "x_table_position": "mm"})
+    out = write_recording(rec, tmp_path / "user.csv", units={"time": "ms", "x_table_position": "mm"})
     assert out.read_text().splitlines()[1] == "time [ms],x_table_position [mm],x_current_ref [A]"
-    back = Recording.from_csv(out)
+    back = read_recording(out)
     assert back.fs == rec.fs and back.t0 == rec.t0
     np.testing.assert_allclose(back["x_table_position"], rec["x_table_position"], rtol=1e-14)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["si.csv", "user.csv"]

@@ -20,6 +20,7 @@ from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.io.xml_format import (SCHEMA_PATH, Experiment, read_experiment, read_xml, transform_xml,
                                       validate_xml, write_xml)
 from drivesense.recording import Recording
+from drivesense.io import read_recording, write_recording
 
 runner = CliRunner()
 NS = "urn:drivesense:experiment:1"
@@ -305,8 +306,8 @@ def test_custom_xslt_runs_but_cannot_read_files(tmp_path):
 
 def test_cli_export_validate_transform_import(tmp_path):
     a, b = _rec(seed=1, machine="Haas"), _rec(seed=2, machine="Haas").with_meta(name="cut 2")
-    a.save(tmp_path / "a.nc")
-    b.save(tmp_path / "b.nc")
+    write_recording(a, tmp_path / "a.nc")
+    write_recording(b, tmp_path / "b.nc")
     xml = tmp_path / "exp.xml"
     res = runner.invoke(app, ["xml", "export", str(tmp_path / "a.nc"), str(tmp_path / "b.nc"), "--out", str(xml)])
     assert res.exit_code == 0, res.output
@@ -317,7 +318,7 @@ def test_cli_export_validate_transform_import(tmp_path):
     assert res.exit_code == 0 and (tmp_path / "s.csv").read_text().count("\n") == 11
     res = runner.invoke(app, ["xml", "import", str(xml), "--out", str(tmp_path / "b2.nc"), "--measurement", "1"])
     assert res.exit_code == 0, res.output
-    assert Recording.load(tmp_path / "b2.nc").equals(b)
+    assert read_recording(tmp_path / "b2.nc").equals(b)
     res = runner.invoke(app, ["xml", "import", str(xml), "--out", str(tmp_path / "x.nc")])
     assert res.exit_code == 2 and "choose one" in res.output
     res = runner.invoke(app, ["xml", "export", str(tmp_path / "a.nc"), "--out", str(xml), "--encoding", "hex"])

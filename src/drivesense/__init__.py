@@ -7,11 +7,12 @@
 >>> force = est.estimate(cut)                        # Recording with force_x [N]
 """
 
-from drivesense import errors, estimate, sim
+from drivesense import errors, estimate, learn, sim
 from drivesense.errors import DriveSenseError
-from drivesense.estimate import CurrentOnly, MEDOB, RigidBody, SignalParams, VibrationMode
-from drivesense.identify.friction import FrictionMap, build_friction_map
-from drivesense.io import read_csv, read_recording, write_csv
+from drivesense.estimate import (CurrentOnly, FrictionMap, MEDOB, RigidBody, SignalParams, VibrationMode,
+                                 build_friction_map)
+from drivesense.learn import LSTM, Hybrid
+from drivesense.io import read_csv, read_recording, write_csv, write_recording
 from drivesense.io.axis_file import read_axis_file, write_axis_file
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.presets import table1_axis, table1_stage
@@ -39,9 +40,9 @@ __version__ = "0.1.0"
 
 __all__ = [
     "errors", "estimate", "sim", "DriveSenseError",
-    "Recording", "read_csv", "read_recording", "write_csv", "read_axis_file", "write_axis_file",
+    "Recording", "read_csv", "read_recording", "write_csv", "write_recording", "read_axis_file", "write_axis_file",
     "BallScrewAxis", "table1_axis", "table1_stage",
-    "CurrentOnly", "RigidBody", "MEDOB", "VibrationMode", "SignalParams",
+    "CurrentOnly", "RigidBody", "MEDOB", "VibrationMode", "SignalParams", "learn", "LSTM", "Hybrid",
     "FrictionMap", "build_friction_map", "Score", "score_estimate", "__version__",
 ]
 __all__ += [

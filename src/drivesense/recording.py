@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterator, Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -199,7 +198,8 @@ class Recording:
         Parameters
         ----------
         channels : mapping of str to array_like
-            Channel name -> samples (at least one channel, at least 2 samples).
+            Channel name -> samples [unit from `units`, default SI] (at least
+            one channel, at least 2 samples).
         fs : float
             Sampling rate [Hz].
         t0 : float, optional
@@ -234,12 +234,26 @@ class Recording:
         return cls(_build_dataset(arrays, fs, float(t0), _meta_to_json(meta)), validate=validate)
 
     @classmethod
-    def _from_trusted(cls, channels: Mapping[str, np.ndarray], units: Mapping[str, str], *, fs: float,
+    def from_computed(cls, channels: Mapping[str, np.ndarray], units: Mapping[str, str], *, fs: float,
                       t0: float, meta: Mapping) -> Recording:
         """Wrap arrays the caller owns and vouches for (float64, 1-D, SI, finite) without copies.
 
-        Internal fast path for computed results (estimator outputs), which
-        are built from validated inputs; public builders validate.
+        The fast path for computed results (estimator outputs), which are
+        built from validated inputs; :meth:`from_arrays` validates.
+
+        Parameters
+        ----------
+        channels : mapping of str to ndarray
+            Channel name -> float64 samples [SI unit of the channel], equally
+            long, finite.
+        units : mapping of str to str
+            SI unit of each channel.
+        fs : float
+            Sampling rate [Hz].
+        t0 : float
+            Time of the first sample [s].
+        meta : mapping
+            JSON-serialisable metadata.
         """
         n = next(iter(channels.values())).shape[0]
         grid = float(t0) + np.arange(n) / float(fs)
@@ -260,15 +274,16 @@ class Recording:
         Parameters
         ----------
         time : array_like
-            Time stamps, in s unless ``units["time"]`` says otherwise.
+            Time stamps [s] (or in the unit ``units["time"]``, if given).
         channels : mapping of str to array_like
-            Channel name -> samples, as long as `time`.
+            Channel name -> samples [unit from `units`, default SI], as long as `time`.
         units : mapping of str to str, optional
             Units of the channels (converted to SI) and optionally of ``"time"``.
         meta : mapping, optional
             JSON-serialisable metadata.
         rel_tol : float, optional
-            Allowed step jitter, see :func:`validate_timebase`.
+            Allowed step jitter as a fraction of the median step [-], see
+            :func:`validate_timebase`.
 
         Returns
         -------
@@ -286,39 +301,6 @@ class Recording:
         rec = cls.from_arrays(channels, fs=fs, t0=float(t[0]), units=units, meta=meta)
         return rec.with_provenance(f"from_time_arrays: uniform grid fs={fs:.12g} Hz from "
                                    f"{t.size} stamps (max step jitter {100 * jitter:.3g} %)")
-
-    @classmethod
-    def from_csv(cls, path: str | Path, **kw: Any) -> Recording:
-        """Read a CSV file; see :func:`drivesense.io.csv.read_csv` for `kw`.
-
-        Parameters
-        ----------
-        path : str or Path
-            CSV file with a ``name [unit]`` header.
-        **kw
-            Passed to :func:`drivesense.io.csv.read_csv`.
-
-        Returns
-        -------
-        Recording
-        """
-        from .io.csv import read_csv
-        return read_csv(path, **kw)
-
-    @classmethod
-    def load(cls, path: str | Path) -> Recording:
-        """Load a Recording saved with :meth:`save` (netCDF4).
-
-        Parameters
-        ----------
-        path : str or Path
-
-        Returns
-        -------
-        Recording
-        """
-        from .io.netcdf import load_netcdf
-        return load_netcdf(path)
 
     # ------------------------------------------------------------ properties
     @property
@@ -471,7 +453,7 @@ class Recording:
         Parameters
         ----------
         channels : mapping of str to array_like
-            Name -> n_samples values.
+            Name -> n_samples values [unit from `units`, default SI].
         units : mapping of str to str, optional
             Units of the given values (converted to SI); default SI.
 
@@ -543,40 +525,6 @@ class Recording:
         return self.with_meta(provenance=[*prov, step])
 
     # ------------------------------------------------------------ output
-    def save(self, path: str | Path) -> Path:
-        """Write a netCDF4 file atomically (see :func:`drivesense.io.netcdf.save_netcdf`).
-
-        Parameters
-        ----------
-        path : str or Path
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        from .io.netcdf import save_netcdf
-        return save_netcdf(self, path)
-
-    def to_csv(self, path: str | Path, units: Mapping[str, str] | None = None,
-               channels: list[str] | None = None) -> Path:
-        """Write a CSV file (see :func:`drivesense.io.csv.write_csv`).
-
-        Parameters
-        ----------
-        path : str or Path
-        units : mapping of str to str, optional
-            Output unit per channel (and ``"time"``); default SI.
-        channels : list of str, optional
-            Channels to write; default all.
-
-        Returns
-        -------
-        Path
-        """
-        from .io.csv import write_csv
-        return write_csv(self, path, units=units, channels=channels)
-
     def equals(self, other: Recording) -> bool:
         """Whether two recordings hold bit-identical data, units, fs, t0 and meta.
 

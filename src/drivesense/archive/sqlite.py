@@ -28,6 +28,7 @@ import numpy as np
 import xarray as xr
 
 from ..errors import ConfigError, DriveSenseError
+from ..io import write_recording
 from ..io.xml_format import Experiment, utc_now, write_xml
 from ..recording import META_ATTR, Recording
 from .store import (CHUNK_SAMPLES, FILTER_KEYS, SearchHit, as_experiment, check_ranges, like_pattern,
@@ -349,11 +350,9 @@ class SQLArchive:
             raise ConfigError(f"experiment {exp.id} has {len(exp.recordings)} measurements: choose one "
                               "for a .nc/.csv file, or export .xml")
         rec = exp.recordings[measurement or 0]
-        if path.suffix.lower() == ".nc":
-            return rec.save(path)
-        if path.suffix.lower() == ".csv":
-            return rec.to_csv(path)
-        raise ConfigError(f"{path}: export to .xml, .nc or .csv")
+        if path.suffix.lower() not in (".nc", ".csv"):
+            raise ConfigError(f"{path}: export to .xml, .nc or .csv")
+        return write_recording(rec, path)
 
     def remove(self, id: str) -> None:
         """Delete one experiment (metadata, index and samples), atomically.

@@ -105,31 +105,77 @@ class ExperimentStore(Protocol):
     location: str
 
     def add(self, source: Any) -> str:
-        """Import an experiment (XML/netCDF/CSV path, Recording(s) or Experiment); returns its id."""
+        """Import an experiment (XML/netCDF/CSV path, Recording(s) or Experiment); returns its id.
+
+        Parameters
+        ----------
+        source : str, Path, Recording, sequence of Recording or Experiment
+            What to import.
+        """
         ...
 
     def search(self, text: str | None = None, **filters: Any) -> list[SearchHit]:
-        """Experiments matching every word of `text` and every filter, best first."""
+        """Experiments matching every word of `text` and every filter, best first.
+
+        Parameters
+        ----------
+        text : str, optional
+            Words that must all occur in the document (see :func:`parse_query`).
+        **filters
+            Field filters (``machine``, ``tool``, ``since``, ``start``, ``limit``...).
+        """
         ...
 
     def show(self, id: str) -> dict:
-        """Metadata of one experiment (no samples)."""
+        """Metadata of one experiment (no samples).
+
+        Parameters
+        ----------
+        id : str
+            Experiment id (or a unique prefix).
+        """
         ...
 
     def load(self, id: str) -> Experiment:
-        """One experiment with its samples."""
+        """One experiment with its samples.
+
+        Parameters
+        ----------
+        id : str
+            Experiment id (or a unique prefix).
+        """
         ...
 
     def export(self, id: str, path: str | Path) -> Path:
-        """Write one experiment as XML (or a single-measurement one as .nc/.csv)."""
+        """Write one experiment as XML (or a single-measurement one as .nc/.csv).
+
+        Parameters
+        ----------
+        id : str
+            Experiment id (or a unique prefix).
+        path : str or Path
+            File to write; its suffix chooses the format.
+        """
         ...
 
     def remove(self, id: str) -> None:
-        """Delete one experiment."""
+        """Delete one experiment.
+
+        Parameters
+        ----------
+        id : str
+            Experiment id (or a unique prefix).
+        """
         ...
 
     def resolve(self, prefix: str) -> str:
-        """The full id of the one experiment whose id starts with `prefix`."""
+        """The full id of the one experiment whose id starts with `prefix`.
+
+        Parameters
+        ----------
+        prefix : str
+            Leading characters of an experiment id.
+        """
         ...
 
     def count(self) -> int:

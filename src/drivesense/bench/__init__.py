@@ -73,7 +73,18 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Worst NRMSE per method and direction, and the cross-feed rigid/vibration ratio."""
+    """Worst NRMSE per method and direction, and the cross-feed rigid/vibration ratio.
+
+    Parameters
+    ----------
+    rows : list of dict
+        One row per scenario and method (``scenario``, ``direction``,
+        ``method``, ``nrmse``), as the accuracy bench writes them.
+
+    Returns
+    -------
+    dict
+    """
     summary: dict = {"worst_nrmse": {}, "cross_rigid_over_vibration_min": None}
     for r in rows:
         key = f"{r['method']}/{r['direction']}"

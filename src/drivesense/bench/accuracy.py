@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
-from drivesense.estimate import METHODS, SignalParams, make_estimator
+from drivesense.estimate import SignalParams, available, make
 from drivesense.estimate.design import lowpass_sos
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.milling import tooth_passing_frequency
@@ -53,16 +53,36 @@ class ConditionResult:
 
 def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
                   settings: ScenarioSettings | None = None, *, seed: int = 1,
-                  methods=tuple(METHODS)) -> ConditionResult:
-    """Simulate one condition (cut and, for feed, 3 idle runs) and score every method."""
+                  methods: tuple[str, ...] | None = None) -> ConditionResult:
+    """Simulate one condition (cut and, for feed, 3 idle runs) and score every method.
+
+    Parameters
+    ----------
+    cond : CutCondition
+        The cutting condition.
+    axis : BallScrewAxis
+        Axis parameters the estimators use.
+    signal : SignalParams
+        The estimators' phase-lag compensation and low-pass.
+    settings : ScenarioSettings, optional
+        Simulated physics and signal chain (default: full physics).
+    seed : int, optional
+        Seed of the cut; the idle runs use ``1000 + 10 * seed`` onwards.
+    methods : tuple of str, optional
+        Estimator names (default: every ball-screw method).
+
+    Returns
+    -------
+    ConditionResult
+    """
     settings = settings or ScenarioSettings()
     cut = simulate_cut(cond, settings, seed=seed)
     idle = simulate_idle(cond, settings, seed=1000 + 10 * seed) if cond.direction == "feed" else None
     sos = lowpass_sos(signal, cut.fs)
     tooth_pass = tooth_passing_frequency(cond.spindle_rpm, settings.tool.flutes)
     result = ConditionResult(cond, cut)
-    for method in methods:
-        est = make_estimator(method, axis, signal)
+    for method in methods or available("ballscrew"):
+        est = make(method, axis=axis, signal=signal)
         if idle is not None:
             est.fit(idle)
             result.idle_repeatability_n[method] = est.friction_map.repeatability_rms
@@ -82,7 +102,7 @@ def run_condition(cond: CutCondition, axis: BallScrewAxis, signal: SignalParams,
 
 
 def run_accuracy(axis: BallScrewAxis, signal: SignalParams, settings: ScenarioSettings | None = None, *,
-                 conditions: list[CutCondition] | None = None, seed: int = 1, methods=tuple(METHODS),
+                 conditions: list[CutCondition] | None = None, seed: int = 1, methods: tuple[str, ...] | None = None,
                  progress: Callable[[str], None] | None = None,
                  keep: bool = False) -> tuple[list[dict], list[ConditionResult]]:
     """Run :func:`run_condition` over the paper's ten conditions.
@@ -98,7 +118,7 @@ def run_accuracy(axis: BallScrewAxis, signal: SignalParams, settings: ScenarioSe
     seed : int
         Seed of the cuts.
     methods : sequence of str
-        Estimators to run (default all).
+        Estimators to run (default: every ball-screw method).
     progress : callable, optional
         Called with each condition's name when it is done.
     keep : bool

@@ -115,9 +115,7 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
     dict
         ``{"learn": {...}}`` for the bench JSON.
     """
-    from drivesense.estimate.hybrid import Hybrid
-    from drivesense.estimate.lstm import LSTM
-    from drivesense.estimate.model_based import ModelBased
+    from drivesense.estimate import make
     from drivesense.identify.linear_axis import identify_axes
     from drivesense.learn.dataset import HELD_OUT_PROCESS, build_dataset, load_dataset
     from drivesense.sim.machining import simulate_air_moves
@@ -130,7 +128,7 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
     if progress:
         progress("dataset")
     axes = identify_axes(simulate_air_moves(seed=100))
-    lstm, hybrid = LSTM(config=config), Hybrid(config=config)
+    lstm, hybrid = make("lstm", config=config), make("hybrid", config=config)
     import tracemalloc
 
     tracemalloc.start()
@@ -153,7 +151,7 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
         lstm.estimate(rec)
     plain_infer_s = time.perf_counter() - t0
     # "model_paper": the same identified model with the paper's friction sign instead of the presliding state
-    ev = evaluate_methods({"model": ModelBased(axes), "model_paper": ModelBased(axes, presliding=False),
+    ev = evaluate_methods({"model": make("model", axes=axes), "model_paper": make("model", axes=axes, presliding=False),
                            "lstm": lstm, "hybrid": hybrid}, held)
     rows = ev["rows"]
     if progress:
@@ -166,7 +164,7 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
     held_proc = {m: _median_rmse(rows, m, splits=("test_process",)) for m in methods}
     wins, wins_process = _hybrid_wins(rows, "test"), _hybrid_wins(rows, "test_process")
     figures = _figures(Path(figures_dir or data_dir.parent / "figures"), held, rows,
-                       {"model": ModelBased(axes), "lstm": lstm, "hybrid": hybrid})
+                       {"model": make("model", axes=axes), "lstm": lstm, "hybrid": hybrid})
     result = {
         "median_rmse": med, "mean_rmse": mean, "pocket_rmse": pocket, "held_out_process": HELD_OUT_PROCESS,
         "held_out_process_median_rmse": held_proc, "hybrid_best_fraction": float(np.mean(wins)) if wins else None,
@@ -185,7 +183,7 @@ def run_learn_bench(*, progress: Callable[[str], None] | None = None, data_dir=N
 
 
 def _figures(folder: Path, held, rows, estimators) -> list[str]:
-    from drivesense.plot import plot_estimates
+    from drivesense.plot import plot_estimates, save_figure
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []
@@ -197,8 +195,8 @@ def _figures(folder: Path, held, rows, estimators) -> list[str]:
             continue
         truth = rec.with_channels({f"force_{ax}": filtered_target(rec, f"force_{ax}", aligned=False)})
         ests = {m: e.estimate(rec) for m, e in estimators.items()}
-        path = plot_estimates(truth, ests, folder / f"learn_{label}_{ax}.png", channel=f"force_{ax}",
-                              zoom_s=min(6.0, rec.duration), max_freq=125.0,
-                              title=f"{rec.meta.get('name')}: force_{ax}, model vs LSTM vs hybrid")
+        fig = plot_estimates(truth, ests, channel=f"force_{ax}", zoom_s=min(6.0, rec.duration), max_freq=125.0,
+                             title=f"{rec.meta.get('name')}: force_{ax}, model vs LSTM vs hybrid")
+        path = save_figure(fig, folder / f"learn_{label}_{ax}.png")
         out.append(str(path))
     return out

@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import signal as sps
 
-from drivesense.estimate import SignalParams, VibrationMode
+from drivesense.estimate import SignalParams, make
 from drivesense.estimate.design import lowpass_sos
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.sim.scenarios import ScenarioSettings, paper_conditions, simulate_cut
@@ -50,7 +50,7 @@ def run_speed(axis: BallScrewAxis, signal: SignalParams, *, duration: float = 60
     -------
     dict
         ``estimator_realtime_factor``, ``estimator_vs_sosfilt``,
-        ``stream_realtime_factor``, ``stream_max_dev_n``,
+        ``stream_realtime_factor`` (fast path), ``stream_push_realtime_factor`` (checked push), ``stream_max_dev_n``,
         ``simulator_realtime_factor``, ``estimator_peak_mb``,
         ``stream_state_bytes`` and the raw timings [s].
     """
@@ -59,7 +59,7 @@ def run_speed(axis: BallScrewAxis, signal: SignalParams, *, duration: float = 60
     simulate_cut(cond, replace(settings, duration=1.0), seed=0)  # compile
     t_sim = _best(lambda: simulate_cut(cond, settings, seed=0), max(1, repeats // 2))
     rec = simulate_cut(cond, settings, seed=0)
-    est = VibrationMode(axis, signal)
+    est = make("vibration", axis=axis, signal=signal)
     est.estimate(rec)  # warm-up
     t_est = _best(lambda: est.estimate(rec), repeats)
     sos = lowpass_sos(signal, rec.fs)
@@ -76,18 +76,34 @@ def run_speed(axis: BallScrewAxis, signal: SignalParams, *, duration: float = 60
     chunk = int(round(rec.fs * 1e-3))
     n = current.size
 
+    names = est.channel_names
+
     def stream_all():
+        """The fast path: arrays in channel order, unchecked."""
         st = est.stream(rec.fs)
         out = np.empty(n)
         for k in range(0, n, chunk):
-            out[k:k + chunk] = st.push_arrays(current[k:k + chunk], angle[k:k + chunk], table[k:k + chunk])
+            out[k:k + chunk] = st.push_arrays(current[k:k + chunk], angle[k:k + chunk],
+                                              table[k:k + chunk])["force_x"]
         return st, out
+
+    def stream_checked():
+        """The contract's push: a mapping per chunk, checked (channels, lengths, finite values)."""
+        st = est.stream(rec.fs)
+        out = np.empty(n)
+        for k in range(0, n, chunk):
+            out[k:k + chunk] = st.push({names[0]: current[k:k + chunk], names[1]: angle[k:k + chunk],
+                                        names[2]: table[k:k + chunk]})["force_x"]
+        return out
 
     stream_all()
     t0 = time.perf_counter()
     st, streamed = stream_all()
     t_stream = time.perf_counter() - t0
-    state = st._state
+    t0 = time.perf_counter()
+    checked = stream_checked()
+    t_checked = time.perf_counter() - t0
+    state = st.state
     state_bytes = int(state.hist.nbytes + state.zi.nbytes + state.scalars.nbytes)
     return {
         "trace_seconds": duration,
@@ -99,6 +115,8 @@ def run_speed(axis: BallScrewAxis, signal: SignalParams, *, duration: float = 60
         "stream_seconds": t_stream,
         "stream_realtime_factor": duration / t_stream,
         "stream_max_dev_n": float(np.max(np.abs(streamed - batch))),
+        "stream_push_realtime_factor": duration / t_checked,
+        "stream_push_max_dev_n": float(np.max(np.abs(checked - batch))),
         "stream_state_bytes": state_bytes,
         "simulator_seconds": t_sim,
         "simulator_realtime_factor": duration / t_sim,

@@ -35,6 +35,7 @@ _INDICATOR = 0.5e-6      # m, standard error of a dial-indicator runout measurem
 
 
 def _coefficients() -> dict:
+    from drivesense.identify.coefficients import fit_cut_table
     from drivesense.sim.tool_life import section4_calibration, simulate_calibration, table1_experiments
 
     def errors(exp, seeds, measured: bool = False, **kw):
@@ -46,7 +47,7 @@ def _coefficients() -> dict:
                 (table, (ktc, kte)), runout = simulate_calibration(exp, seed, **kw), None
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                fit = table.fit(runout=runout)
+                fit = fit_cut_table(table, runout=runout)
             e.append((fit.Ktc / ktc - 1, fit.Kte / kte - 1))
         e = np.abs(np.array(e))
         return {"calibrations": len(e), "cuts": len(table), "Ktc_error_p95": float(np.percentile(e[:, 0], 95)),
@@ -66,7 +67,7 @@ def _coefficients() -> dict:
             "note": "errors are |estimate / truth - 1| over 20 seeded new tools; runout (up to 7.5 um on "
                     "multi-flute tools) makes flutes lose contact near entry/exit, which Eq. 2 ignores; "
                     "'runout_measured': the runout measured with a dial indicator (0.5 um error) is given "
-                    "to the fit (mechanistic bases, drivesense.identify.tool_runout)"}
+                    "to the fit (mechanistic bases, drivesense.machine.tool_runout)"}
 
 
 def _tool_lives() -> tuple[dict, dict]:

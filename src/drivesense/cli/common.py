@@ -12,7 +12,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-__all__ = ["console", "err_console", "friendly", "write_json", "progress_bar", "accuracy_table", "read_trace"]
+__all__ = ["console", "err_console", "friendly", "write_json", "progress_bar", "accuracy_table", "read_trace",
+           "build_estimator", "save_recording"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -72,3 +73,49 @@ def read_trace(path: Path, axis_name: str = "x"):
     from drivesense.io import read_recording
 
     return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)
+
+
+#: CLI option of each kind of method configuration, and the registry keyword it fills.
+_METHOD_OPTIONS = {"--axis": "axis", "--axes": "axes", "--model": "model"}
+
+
+def build_estimator(method: str, *, axis_file: Optional[Path] = None, axes_file: Optional[Path] = None,
+                    model_dir: Optional[Path] = None, axis_name: str = "x"):
+    """Any registered method from the CLI's options (``--axis``, ``--axes`` or ``--model``).
+
+    Refuses, naming the options, a method given another method's configuration
+    or without its own.
+    """
+    from drivesense.errors import ConfigError
+    from drivesense.estimate import describe_methods, make
+
+    methods = describe_methods()
+    if method not in methods:
+        raise ConfigError(f"unknown method {method!r} (--method); choose one of {', '.join(methods)}")
+    info = methods[method]
+    given = {"--axis": axis_file, "--axes": axes_file, "--model": model_dir}
+    needed = info.needs.split()[0]
+    wrong = [opt for opt, value in given.items() if value is not None and opt != needed]
+    if wrong:
+        raise ConfigError(f"--method {method} takes {info.needs}, not {', '.join(wrong)}")
+    if given[needed] is None:
+        raise ConfigError(f"--method {method} needs {info.needs}")
+    config = {_METHOD_OPTIONS[needed]: given[needed]}
+    if info.drive == "ballscrew":
+        config["axis_name"] = axis_name
+    return make(method, **config)
+
+
+def save_recording(rec, out: Path, *, parents: bool = False) -> None:
+    """Write a recording command's ``--out``: ``.nc`` (lossless) or ``.csv``, atomically.
+
+    With ``parents`` the folder of `out` is created (after the suffix is checked).
+    """
+    from drivesense.errors import ConfigError
+    from drivesense.io import write_recording
+
+    if Path(out).suffix.lower() not in (".nc", ".csv"):
+        raise ConfigError(f"output '{out}': use a .nc (netCDF, lossless) or .csv suffix")
+    if parents:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+    write_recording(rec, out)

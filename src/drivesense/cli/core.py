@@ -9,7 +9,8 @@ import typer
 from rich import box
 from rich.table import Table
 
-from drivesense.cli.common import accuracy_table, console, friendly, progress_bar, read_trace, write_json
+from drivesense.cli.common import (accuracy_table, build_estimator, console, friendly, progress_bar, read_trace,
+                                   save_recording, write_json)
 
 __all__ = ["register"]
 
@@ -29,7 +30,7 @@ def demo(
     from drivesense.estimate import SignalParams
     from drivesense.estimate.design import lowpass_sos
     from drivesense.machine.presets import table1_axis
-    from drivesense.plot import plot_estimates, plot_friction_maps
+    from drivesense.plot import plot_estimates, plot_friction_maps, save_figure
     from drivesense.sim.scenarios import paper_conditions
 
     axis, signal = table1_axis(), SignalParams()
@@ -42,14 +43,13 @@ def demo(
             progress.update(task, description=f"{cond.name:<18}")
             res = run_condition(cond, axis, signal, seed=seed)
             rows.extend(res.rows)
-            fig = plot_estimates(res.cut, res.estimates, out / f"{cond.name}.png",
-                                 sos=lowpass_sos(signal, res.cut.fs), max_freq=1500.0,
+            fig = plot_estimates(res.cut, res.estimates, sos=lowpass_sos(signal, res.cut.fs), max_freq=1500.0,
                                  title=f"{cond.name}: estimated vs true force_x (full physics)")
-            figures.append(str(fig))
+            figures.append(str(save_figure(fig, out / f"{cond.name}.png")))
             if res.friction_maps and not any("friction" in f for f in figures):
                 maps = {m: res.friction_maps[m] for m in ("rigid", "vibration")}
-                figures.append(str(plot_friction_maps(maps, out / f"friction_maps_{cond.name}.png",
-                                                      title=f"Friction from 3 idling runs ({cond.name})")))
+                fig = plot_friction_maps(maps, title=f"Friction from 3 idling runs ({cond.name})")
+                figures.append(str(save_figure(fig, out / f"friction_maps_{cond.name}.png")))
             progress.advance(task)
     console.print(accuracy_table(rows, "Force estimation on the 10 end-milling conditions (full physics)"))
     summary = summarise(rows)
@@ -92,20 +92,8 @@ def simulate(
         cond, is_idle = condition_by_name(scenario)
         rec = (simulate_idle(cond, settings, repeats=1, seed=seed)[0] if is_idle
                else simulate_cut(cond, settings, seed=seed))
-    _save_recording(rec, out)
+    save_recording(rec, out)
     console.print(f"wrote {out}: {rec!r}", markup=False)
-
-
-def _save_recording(rec, out: Path) -> None:
-    from drivesense.errors import ConfigError
-
-    suffix = Path(out).suffix.lower()
-    if suffix == ".nc":
-        rec.save(out)
-    elif suffix == ".csv":
-        rec.to_csv(out)
-    else:
-        raise ConfigError(f"output '{out}': use a .nc (netCDF, lossless) or .csv suffix")
 
 
 # ------------------------------------------------------------------ estimate
@@ -127,7 +115,8 @@ def estimate(
     trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
     out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N] (model: force_x/y/z).")],
     axis_file: Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")] = None,
-    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration | model | lstm | hybrid")] = "vibration",
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration (--axis); model (--axes); "
+                                              "lstm | hybrid (--model)")] = "vibration",
     idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
     tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
@@ -138,36 +127,17 @@ def estimate(
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
-    from drivesense.estimate import make_estimator
     from drivesense.io import write_csv
-    from drivesense.io.axis_file import read_axis_file
 
-    if method in ("model", "lstm", "hybrid"):
+    est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
+                          axis_name=axis_name)
+    if est.drive != "ballscrew":
         from drivesense.cli.identify_linear import estimate_model
 
-        if idle or tare or axis_file:
-            needs = "--axes AXES.toml" if method == "model" else "--model MODEL"
-            raise ConfigError(f"--method {method} takes {needs}, not --axis/--idle/--tare "
-                              "(it reads a 3-axis NC trace)")
-        if method == "model":
-            if axes_file is None:
-                raise ConfigError("--method model needs --axes AXES.toml (write one with 'drivesense identify linear')")
-            from drivesense.estimate.model_based import ModelBased
-            from drivesense.io.axes_file import read_axes_file
-
-            est = ModelBased(read_axes_file(axes_file))
-        else:
-            if model_dir is None:
-                raise ConfigError(f"--method {method} needs --model MODEL (train one with 'drivesense train {method}')")
-            from drivesense.estimate.hybrid import Hybrid
-            from drivesense.estimate.lstm import LSTM
-
-            est = (Hybrid if method == "hybrid" else LSTM).load(model_dir)
+        if idle or tare:
+            raise ConfigError(f"--method {method} takes no --idle/--tare (it reads a 3-axis NC trace)")
         return estimate_model(trace, est, out, json_path, plot)
-    if axis_file is None:
-        raise ConfigError(f"--method {method} needs --axis AXIS.toml (ball-screw axis file)")
-    axis, signal = read_axis_file(axis_file)
-    est = make_estimator(method, axis, signal, axis_name=axis_name)
+    signal = est.signal
     rec = read_trace(trace, axis_name)
     if idle and tare:
         raise ConfigError("give either --idle runs or --tare, not both")
@@ -197,12 +167,13 @@ def estimate(
         info["score_vs_reference"] = s.to_dict()
     if plot:
         from drivesense.estimate.design import lowpass_sos
-        from drivesense.plot import plot_estimates
+        from drivesense.plot import plot_estimates, save_figure
 
         truth = rec if est.output_channel in rec.channels else force
-        plot_estimates(truth, {method: force}, plot, channel=est.output_channel, sos=lowpass_sos(signal, rec.fs),
-                       window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration),
-                       max_freq=min(1.5 * signal.lpf_hz, 0.5 * rec.fs), title=f"{method} estimate: {trace.name}")
+        fig = plot_estimates(truth, {method: force}, channel=est.output_channel, sos=lowpass_sos(signal, rec.fs),
+                             window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration),
+                             max_freq=min(1.5 * signal.lpf_hz, 0.5 * rec.fs), title=f"{method} estimate: {trace.name}")
+        save_figure(fig, plot)
         info["plot"] = str(plot)
     table = Table(title=f"{method} estimate of {trace.name}", show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
@@ -234,11 +205,11 @@ def friction(
     import numpy as np
 
     from drivesense.dsp import dominant_wavelengths, wavelength_spectrum
-    from drivesense.estimate import make_estimator
-    from drivesense.io.axis_file import read_axis_file
+    from drivesense.errors import ConfigError
 
-    axis, signal = read_axis_file(axis_file)
-    est = make_estimator(method, axis, signal, axis_name=axis_name)
+    est = build_estimator(method, axis_file=axis_file, axis_name=axis_name)
+    if est.drive != "ballscrew":
+        raise ConfigError(f"friction maps are built by the ball-screw methods; --method {method} is not one")
     est.fit([read_trace(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
     fmap = est.friction_map
     peaks = dominant_wavelengths(*wavelength_spectrum(fmap.force, fmap.position), 5)
@@ -255,9 +226,9 @@ def friction(
                                                     for p in peaks))
     console.print(table)
     if plot:
-        from drivesense.plot import plot_friction_maps
+        from drivesense.plot import plot_friction_maps, save_figure
 
-        plot_friction_maps({method: fmap}, plot)
+        save_figure(plot_friction_maps({method: fmap}), plot)
         info["plot"] = str(plot)
     write_json(json_path, info)
 

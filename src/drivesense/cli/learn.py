@@ -69,8 +69,7 @@ def train(
 ) -> None:
     """Train one network per force component (and save state_dicts + config)."""
     from drivesense.errors import ConfigError
-    from drivesense.estimate.hybrid import Hybrid
-    from drivesense.estimate.lstm import LSTM
+    from drivesense.learn import Hybrid, LSTM
     from drivesense.learn.dataset import load_dataset
     from drivesense.learn.train import TrainConfig, require_torch
 

@@ -68,7 +68,7 @@ def import_(
     timeout: Annotated[float, typer.Option(help="URL: HTTP timeout [s].")] = 10.0,
 ) -> None:
     """Resample MTConnect observations explicitly onto a uniform grid and save a recording."""
-    from drivesense.cli.core import _save_recording
+    from drivesense.cli.common import save_recording
     from drivesense.io.mtconnect import parse_devices
     from drivesense.io.mtconnect_client import MTConnectClient
     from drivesense.io.mtconnect_resample import read_mtconnect
@@ -79,7 +79,7 @@ def import_(
                                                                method=method, devices=model)
     else:
         rec = read_mtconnect(Path(source), model, fs=fs, method=method)
-    _save_recording(rec, out)
+    save_recording(rec, out)
     console.print(f"wrote {out}: {rec!r}", markup=False, highlight=False)
     console.print(rec.meta["provenance"][-1], markup=False, highlight=False)
 

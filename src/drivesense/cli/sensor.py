@@ -9,7 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, err_console, friendly, progress_bar, read_trace, write_json
+from drivesense.cli.common import (console, err_console, friendly, progress_bar, read_trace, save_recording,
+                                   write_json)
 
 __all__ = ["register", "sensor_app"]
 
@@ -26,16 +27,6 @@ def _band(text: str) -> tuple[float, float]:
     except ValueError:
         raise ConfigError(f"--band {text!r}: expected LOW:HIGH in Hz, e.g. 100:4000") from None
     return lo, hi
-
-
-def _save(rec, path: Path) -> None:
-    from drivesense.errors import ConfigError
-
-    suffix = path.suffix.lower()
-    if suffix not in (".nc", ".csv"):
-        raise ConfigError(f"output '{path}': use a .nc (netCDF, lossless) or .csv suffix")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rec.save(path) if suffix == ".nc" else rec.to_csv(path)
 
 
 @sensor_app.command("simulate")
@@ -61,9 +52,9 @@ def simulate(
         task = progress.add_task("simulate", total=len(amps) + 1)
         for k, a in enumerate(amps):
             path = out_dir / f"shaker_{a:g}g.{fmt}"
-            _save(simulate_shaker_pair(a, seed=seed + k), path)
+            save_recording(simulate_shaker_pair(a, seed=seed + k), path, parents=True)
             progress.advance(task)
-        _save(simulate_machining_vibration(seed=seed + 100), out_dir / f"milling.{fmt}")
+        save_recording(simulate_machining_vibration(seed=seed + 100), out_dir / f"milling.{fmt}", parents=True)
         progress.advance(task)
     console.print(f"wrote {len(amps)} shaker pairs and milling.{fmt} to {out_dir} "
                   + "(channels electret [V], accel_ref [m/s^2])")
@@ -81,7 +72,7 @@ def calibrate(
     plot: Annotated[Optional[Path], typer.Option(help="Write the ratio spectrum (Fig. 6 style) here.")] = None,
 ) -> None:
     """Linearity check, ratio spectrum and a regularised deconvolution filter from paired recordings."""
-    from drivesense.identify.sensor import calibrate_sensor, plot_sensor_calibration
+    from drivesense.identify.sensor import calibrate_sensor
 
     recs = [read_trace(p) for p in pairs]
     cal = calibrate_sensor(recs, band=_band(band), sensor_channel=sensor_channel,
@@ -108,7 +99,9 @@ def calibrate(
     info = {"pairs": [str(p) for p in pairs], "filter": str(out), "fs_hz": cal.fs, "band_hz": list(cal.band),
             "taps": int(cal.taps.size), "linearity": lin}
     if plot:
-        plot_sensor_calibration(cal, plot)
+        from drivesense.plot import plot_sensor_calibration, save_figure
+
+        save_figure(plot_sensor_calibration(cal), plot)
         info["plot"] = str(plot)
         console.print(f"wrote {plot}")
     write_json(json_path, info)
@@ -133,7 +126,7 @@ def apply(
     cal = SensorCalibration.load(filter_path)
     rec = read_trace(recording)
     result = cal.apply(rec, channel=sensor_channel)
-    _save(result, out)
+    save_recording(result, out, parents=True)
     acc = result["acceleration"]
     info = {"recording": str(recording), "filter": str(filter_path), "output": str(out),
             "acceleration_rms_m_s2": float(np.std(acc))}

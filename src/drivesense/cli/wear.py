@@ -31,7 +31,7 @@ def _read(path: Path, diameter: Optional[float], flutes: Optional[int], mode: st
 
 def _write_session(life, path: Path) -> Path:
     """Write a simulated tool life as a session CSV in shop units (what a user's logger would give)."""
-    from drivesense.io import atomic_output
+    from drivesense.io import write_text_file
 
     exp, t = life.experiment, life.table
     head = ["calibration", "distance [m]", "diameter [mm]", "flutes", "axial_depth [mm]", "spindle_speed [rpm]",
@@ -45,10 +45,7 @@ def _write_session(life, path: Path) -> Path:
                                f"{c.axial_depth * 1e3:.6g}", f"{c.spindle_speed * 30 / math.pi:.6g}",
                                f"{c.feed_per_tooth * 1e3:.6g}", f"{math.degrees(c.entry_angle):.6g}",
                                f"{math.degrees(c.exit_angle):.6g}", f"{sp:.6g}", f"{ap:.6g}"]))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_text_file(path, "\n".join(lines) + "\n")
 
 
 @wear_app.command("simulate")
@@ -94,7 +91,7 @@ def _runout(offset_um, phase_deg, helix_deg):
         return None
     import math
 
-    from drivesense.identify.tool_runout import ToolRunout
+    from drivesense.machine.tool_runout import ToolRunout
 
     return ToolRunout(offset_um * 1e-6, math.radians(phase_deg), helix_deg)
 
@@ -118,7 +115,7 @@ def calibrate(
     import numpy as np
 
     from drivesense.errors import ConfigError
-    from drivesense.identify.coefficients import SeeSawWarning, plot_calibration
+    from drivesense.identify.coefficients import SeeSawWarning, fit_cut_table
 
     table = _read(cuts, diameter, flutes, mode)
     idx = np.arange(len(table))
@@ -135,7 +132,7 @@ def calibrate(
         raise ConfigError(f"--calibration {calibration}: {cuts.name} has no 'calibration' column")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SeeSawWarning)
-        fit = table.fit(idx, runout=_runout(runout_um, runout_phase_deg, helix_deg))
+        fit = fit_cut_table(table, idx, runout=_runout(runout_um, runout_phase_deg, helix_deg))
     out = Table(title=f"Tangential force model from {len(idx)} cuts of {cuts.name}", show_header=False)
     out.add_row("K_tc (cutting)", f"{fit.Ktc * 1e-6:.1f} ± {fit.Ktc_se * 1e-6:.2g} N/mm²")
     out.add_row("K_te (edge)", f"{fit.Kte * 1e-3:.2f} ± {fit.Kte_se * 1e-3:.2g} N/mm")
@@ -147,7 +144,9 @@ def calibrate(
         err_console.print(f"[bold yellow]warning:[/] {note}", highlight=False)
     info = {"table": str(cuts), "cuts": [int(i) for i in idx], **fit.to_dict()}
     if plot:
-        plot_calibration(fit, plot, title=f"K_tc / K_te calibration: {cuts.name}")
+        from drivesense.plot import plot_calibration, save_figure
+
+        save_figure(plot_calibration(fit, title=f"K_tc / K_te calibration: {cuts.name}"), plot)
         info["plot"] = str(plot)
         console.print(f"wrote {plot}")
     write_json(json_path, info)
@@ -170,7 +169,7 @@ def track(
     helix_deg: Annotated[float, typer.Option(help="Helix angle of the tool [deg] (with --runout-um).")] = 30.0,
 ) -> None:
     """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm."""
-    from drivesense.monitor.wear import WearTracker, plot_wear_track, track_wear
+    from drivesense.monitor.wear import WearTracker, track_wear
 
     table = _read(session, diameter, flutes, mode)
     with progress_bar() as progress:
@@ -197,7 +196,9 @@ def track(
     info["table"] = str(session)
     info["settings"] = WearTracker().settings.__dict__
     if plot:
-        plot_wear_track(report, plot)
+        from drivesense.plot import plot_wear_track, save_figure
+
+        save_figure(plot_wear_track(report), plot)
         info["plot"] = str(plot)
         console.print(f"wrote {plot}")
     write_json(json_path, info)

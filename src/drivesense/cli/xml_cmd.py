@@ -62,12 +62,12 @@ def import_(
         help="Measurement name or 0-based index (needed when the file holds several).")] = None,
 ) -> None:
     """Read one measurement of an experiment file into a recording file."""
-    from drivesense.cli.core import _save_recording
+    from drivesense.cli.common import save_recording
     from drivesense.io.xml_format import read_xml
 
     which = int(measurement) if measurement is not None and measurement.lstrip("-").isdigit() else measurement
     rec = read_xml(file, measurement=which)
-    _save_recording(rec, out)
+    save_recording(rec, out)
     console.print(f"wrote {out}: {rec!r}", markup=False, highlight=False)
 
 

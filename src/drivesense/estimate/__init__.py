@@ -1,31 +1,68 @@
-"""Force estimators: one protocol for all (see :mod:`drivesense.estimate.base`).
+"""Force estimators: one contract for all (:mod:`drivesense.estimate.base`), one registry.
 
-``CurrentOnly`` (baseline), ``RigidBody`` (Eq. 5), ``MEDOB`` (Appendix, observer
-form) and ``VibrationMode`` (Eq. 6) of the first paper.
+Ball screw (first paper): ``CurrentOnly`` (baseline), ``RigidBody`` (Eq. 5),
+``MEDOB`` (Appendix, observer form), ``VibrationMode`` (Eq. 6).  Linear motor
+(third paper): ``ModelBased`` (Eq. 2); the learned ``LSTM`` and ``Hybrid``
+live in :mod:`drivesense.learn` and register here when it is imported.
+
+>>> import drivesense as ds
+>>> ds.estimate.available()
+('current', 'rigid', 'medob', 'vibration', 'model', 'lstm', 'hybrid')
 """
 
-from drivesense.estimate.base import EstimatorStream, ForceEstimator, LinearForceEstimator
+from __future__ import annotations
+
+from drivesense.errors import ConfigError
+from drivesense.estimate.ballscrew import BallScrewEstimator
+from drivesense.estimate.base import ForceEstimator, ForceStream
 from drivesense.estimate.current_only import CurrentOnly
+from drivesense.estimate.friction_map import FrictionMap, build_friction_map
 from drivesense.estimate.medob import MEDOB
-from drivesense.estimate.model_based import ModelBased, ModelBasedStream
+from drivesense.estimate.model_based import ModelBased
+from drivesense.estimate.registry import MethodInfo, available, describe_methods, is_path, make, register
 from drivesense.estimate.rigid import RigidBody
-from drivesense.estimate.signal import SignalParams
 from drivesense.estimate.vibration import VibrationMode
+from drivesense.io.axes_file import read_axes_file
+from drivesense.io.axis_file import read_axis_file
+from drivesense.machine.ballscrew import BallScrewAxis
+from drivesense.machine.linear_motor import ThreeAxisModel
+from drivesense.machine.signal_chain import SignalParams
 
-__all__ = ["ForceEstimator", "LinearForceEstimator", "EstimatorStream", "CurrentOnly", "RigidBody",
-           "MEDOB", "VibrationMode", "SignalParams", "METHODS", "make_estimator"]
-__all__ += ["ModelBased", "ModelBasedStream"]   # linear-motor machine (third paper, Eq. 2)
-
-#: CLI / benchmark names of the ball-screw estimators.
-METHODS = {"current": CurrentOnly, "rigid": RigidBody, "medob": MEDOB, "vibration": VibrationMode}
+__all__ = ["ForceEstimator", "ForceStream", "BallScrewEstimator", "CurrentOnly", "RigidBody", "MEDOB",
+           "VibrationMode", "ModelBased", "SignalParams", "FrictionMap", "build_friction_map",
+           "MethodInfo", "available", "make", "register", "describe_methods"]
 
 
-def make_estimator(method: str, axis, signal=None, *, axis_name: str = "x") -> LinearForceEstimator:
-    """Build an estimator by its short name (``current``, ``rigid``, ``medob``, ``vibration``)."""
-    try:
-        cls = METHODS[method]
-    except KeyError:
-        from drivesense.errors import ConfigError
+def _ballscrew_factory(cls: type[BallScrewEstimator]):
+    def factory(*, axis, signal: SignalParams | None = None, axis_name: str = "x") -> BallScrewEstimator:
+        if is_path(axis):
+            axis, file_signal = read_axis_file(axis)
+            signal = signal or file_signal
+        if not isinstance(axis, BallScrewAxis):
+            raise ConfigError(f"method {cls.name!r} needs a ball-screw axis (--axis AXIS.toml), "
+                              f"got {type(axis).__name__}")
+        return cls(axis, signal, axis_name=axis_name)
 
-        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}") from None
-    return cls(axis, signal, axis_name=axis_name)
+    factory.__doc__ = f"{cls.__name__} from ``axis`` (BallScrewAxis or AXIS.toml path), ``signal``, ``axis_name``."
+    return factory
+
+
+def _model_factory(*, axes, presliding: bool = True, v_eps: float = 2.0e-4) -> ModelBased:
+    if is_path(axes):
+        axes = read_axes_file(axes)
+    if not isinstance(axes, ThreeAxisModel):
+        raise ConfigError(f"method 'model' needs identified axes (--axes AXES.toml), got {type(axes).__name__}")
+    return ModelBased(axes, presliding=presliding, v_eps=v_eps)
+
+
+_SUMMARIES = {
+    CurrentOnly: "K_t I / R minus friction: the classical current-based baseline",
+    RigidBody: "rigid-body mode, Eq. 5 of the first paper",
+    MEDOB: "multi-encoder disturbance observer (observer form), the first paper's Appendix",
+    VibrationMode: "vibration mode, Eq. 6 of the first paper",
+}
+for _cls, _summary in _SUMMARIES.items():
+    register(_cls.name, _ballscrew_factory(_cls), drive="ballscrew", summary=_summary, needs="--axis AXIS.toml (the ball-screw axis file: drivesense axis or identify frf)")
+register(ModelBased.name, _model_factory, drive="linear",
+         needs="--axes AXES.toml (write one with 'drivesense identify linear')",
+         summary="linear-motor axis model, Eq. 2 of the third paper, with presliding friction")

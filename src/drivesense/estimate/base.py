@@ -1,272 +1,431 @@
-"""The protocol every force estimator follows, and the linear ball-screw base class.
+"""The contract every force estimator follows, whatever its drive type or method.
 
 ::
 
-    est = ds.estimate.VibrationMode(axis, signal)
-    est.fit(idle_runs)                 # friction map from air-cut runs (optional)
-    est.tare(recording, 0.5, 1.5)      # or: a tare for a standing axis
-    forces = est.estimate(recording)   # Recording with force_x, attrs latency_s
-    state = est.stream(); state.push(chunk)
+    est = ds.estimate.make("vibration", axis=AXIS, signal=SIGNAL)   # any name in available()
+    est.fit(idle_runs)                  # friction map / identification / training (may be a no-op)
+    forces = est.estimate(recording)    # Recording with force_{ax} [N], meta["latency_s"]
+    stream = est.stream(fs)             # constant-size state; refuses chunks at another rate
+    stream.push(chunk)                  # Recording in -> Recording out; mapping in -> dict out
 
-Batch and streaming run the same compiled kernel with the same state, so
-they agree to the bit.
+A method implements four things: :attr:`ForceEstimator.channel_names` and
+:attr:`~ForceEstimator.output_channels`, :meth:`~ForceEstimator.fit`,
+:meth:`~ForceEstimator.latency_s`, and the pair
+:meth:`~ForceEstimator.new_state` / :meth:`~ForceEstimator.process` that
+turns input arrays into force arrays while carrying a state.  Batch
+estimation is one ``process`` call from a fresh state, so batch and
+streaming give the same numbers by construction (to the bit where one
+compiled kernel serves both).  Input checks and the result wrapper live here
+and are shared by every method.
 """
 
 from __future__ import annotations
 
-from typing import Mapping, Protocol, Sequence, runtime_checkable
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
-from drivesense.errors import CoverageError, SignalTooShortError
-from drivesense.estimate.design import ForceCombination, ObserverDesign, discretise
-from drivesense.estimate.kernel import FrictionTable, KernelState, run_kernel
-from drivesense.estimate.signal import SignalParams
-from drivesense.machine.ballscrew import BallScrewAxis
+from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
 from drivesense.recording import Recording
+from drivesense.timebase import check_fs
 
-__all__ = ["ForceEstimator", "LinearForceEstimator", "EstimatorStream", "INPUT_CHANNELS"]
+__all__ = ["ForceEstimator", "ForceStream", "read_inputs", "check_chunk", "declared_delay", "wrap_forces"]
 
-#: Channels a ball-screw estimator reads, per axis letter.
-INPUT_CHANNELS = ("current_ref", "motor_angle", "table_position")
-
-
-@runtime_checkable
-class ForceEstimator(Protocol):
-    """What benchmarks, the CLI and the monitor rely on."""
-
-    name: str
-
-    def fit(self, idle_runs: Sequence[Recording]) -> "ForceEstimator": ...
-
-    def estimate(self, recording: Recording) -> Recording: ...
-
-    def stream(self): ...
+#: Relative tolerance on a chunk's sample rate against its stream's.
+RATE_TOLERANCE = 1e-6
 
 
-class EstimatorStream:
-    """Chunk-by-chunk estimation with carried state (see :meth:`LinearForceEstimator.stream`).
+def declared_delay(recording: Recording) -> float:
+    """The delay a trace declares for its own signals [s] (``meta["nc_delay_s"]``, 0 if absent).
 
-    The state's size does not depend on how much has been pushed.
-    """
-
-    def __init__(self, estimator: "LinearForceEstimator", fs: float) -> None:
-        self.estimator = estimator
-        self.fs = float(fs)
-        self._state = estimator._new_state(fs)
-        self._channels = estimator.channel_names
-        self.samples_seen = 0
-
-    @property
-    def latency_s(self) -> float:
-        """Pure delay of the estimate [s]."""
-        return self._state_latency
-
-    @property
-    def _state_latency(self) -> float:
-        return self.estimator.design(self.fs).latency_s
-
-    def push_arrays(self, current_ref, motor_angle, table_position) -> np.ndarray:
-        """Process one chunk given as arrays (SI) and return ``force_x`` [N] for it (fast path)."""
-        out = run_kernel(self._state, current_ref, motor_angle, table_position)
-        self.samples_seen += out.size
-        return out
-
-    def push(self, chunk: Recording | Mapping[str, np.ndarray]):
-        """Process one chunk.
-
-        Parameters
-        ----------
-        chunk : Recording or mapping of str to ndarray
-            The next samples of the input channels (SI).  A mapping may use the
-            canonical names (``x_current_ref`` ...) or the bare ones
-            (``current_ref`` ...).
-
-        Returns
-        -------
-        ndarray or Recording
-            The force estimate [N] for the chunk's samples; a Recording (with
-            the chunk's time base) when a Recording was pushed.
-        """
-        if isinstance(chunk, Recording):
-            chunk.require(*self._channels)
-            force = self.push_arrays(*(chunk[c] for c in self._channels))
-            return self.estimator._wrap(chunk, force)
-        arrays = []
-        for full in self._channels:
-            bare = full.split("_", 1)[1]
-            if full in chunk:
-                arrays.append(chunk[full])
-            elif bare in chunk:
-                arrays.append(chunk[bare])
-            else:
-                from drivesense.errors import MissingChannelError
-
-                raise MissingChannelError(f"stream chunk lacks channel '{full}'")
-        return self.push_arrays(*arrays)
-
-
-class LinearForceEstimator:
-    """Base of the ball-screw estimators of the first paper.
+    A logger's anti-alias filter or a controller's trace buffer delays every
+    channel alike; no causal method can undo it, so it adds to the latency.
 
     Parameters
     ----------
-    axis : BallScrewAxis
-        Axis parameters.
-    signal : SignalParams, optional
-        Phase-lag compensation and low-pass (default: the paper's values).
-    axis_name : str
-        Axis letter of the input and output channels.
+    recording : Recording
+        The trace.
+    """
+    delay = recording.meta.get("nc_delay_s", 0.0)
+    if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not math.isfinite(delay) or delay < 0:
+        raise ConfigError(f"recording meta 'nc_delay_s' must be a delay >= 0 [s], got {delay!r}")
+    return float(delay)
+
+
+def read_inputs(recording: Recording, channels: Sequence[str]) -> dict[str, np.ndarray]:
+    """The input arrays of ``channels`` from a Recording (validated on construction: finite, SI).
+
+    Parameters
+    ----------
+    recording : Recording
+        Trace holding every channel.
+    channels : sequence of str
+        Canonical channel names.
+
+    Raises
+    ------
+    MissingChannelError
+        Naming every missing channel.
+    """
+    recording.require(*channels)
+    return {c: recording[c] for c in channels}
+
+
+def _bare_names(channels: Sequence[str]) -> dict[str, str]:
+    """``{bare: canonical}`` for channels whose axis-less name is unique (``current_ref`` -> ``x_current_ref``)."""
+    bare: dict[str, list[str]] = {}
+    for c in channels:
+        head, _, tail = c.partition("_")
+        if tail and len(head) == 1:
+            bare.setdefault(tail, []).append(c)
+    return {b: cs[0] for b, cs in bare.items() if len(cs) == 1}
+
+
+def check_chunk(chunk: Mapping[str, Any], channels: Sequence[str], fs: float | None = None,
+                stream_fs: float | None = None) -> dict[str, np.ndarray]:
+    """Validate a mapping chunk and return float64 arrays of ``channels``.
+
+    Parameters
+    ----------
+    chunk : mapping of str to array_like
+        Channel -> samples (SI).  Canonical names (``x_current_ref``), or the
+        bare name (``current_ref``) where it names one input unambiguously.
+        An optional ``"time"`` entry [s] is checked against the stream's rate.
+    channels : sequence of str
+        Inputs the estimator needs.
+    fs : float, optional
+        Rate the caller says the chunk has [Hz]; checked against ``stream_fs``.
+    stream_fs : float, optional
+        The stream's rate [Hz].
+
+    Raises
+    ------
+    MissingChannelError
+        Naming every missing channel.
+    InvalidSignalError
+        A channel that is not 1-D, not finite, or not as long as the others;
+        a chunk at another rate than the stream's.
+    """
+    if not isinstance(chunk, Mapping):
+        raise InvalidSignalError(f"push() takes a Recording or a mapping of channel arrays, got "
+                                 f"{type(chunk).__name__}")
+    if stream_fs is not None:
+        if fs is not None:
+            _check_rate(float(fs), stream_fs, "the chunk's fs")
+        if "time" in chunk:
+            t = np.asarray(chunk["time"], dtype=np.float64)
+            if t.ndim == 1 and t.size >= 2:
+                _check_rate((t.size - 1) / (t[-1] - t[0]) if t[-1] != t[0] else math.inf, stream_fs,
+                            "the chunk's 'time'")
+    bare = None
+    arrays: dict[str, np.ndarray] = {}
+    missing = []
+    n = None
+    for c in channels:
+        if c in chunk:
+            values = chunk[c]
+        else:
+            bare = bare if bare is not None else {v: k for k, v in _bare_names(channels).items()}
+            alias = bare.get(c)
+            if alias is None or alias not in chunk:
+                missing.append(c)
+                continue
+            values = chunk[alias]
+        arr = np.asarray(values, dtype=np.float64)
+        if arr.ndim != 1:
+            raise InvalidSignalError(f"stream chunk channel '{c}' must be 1-D, got shape {arr.shape}")
+        if n is not None and arr.size != n:
+            raise InvalidSignalError(f"stream chunk channel '{c}' has {arr.size} samples, the others {n}")
+        if not np.isfinite(arr).all():
+            bad = int(np.argmin(np.isfinite(arr)))
+            raise InvalidSignalError(f"stream chunk channel '{c}' holds NaN or inf (sample {bad})")
+        arrays[c], n = arr, arr.size
+    if missing:
+        raise MissingChannelError(f"stream chunk lacks channel(s) {', '.join(repr(m) for m in missing)}")
+    return arrays
+
+
+def _check_rate(got: float, want: float, what: str) -> None:
+    if not abs(got - want) <= RATE_TOLERANCE * want:
+        raise InvalidSignalError(f"{what} is {got:g} Hz but the stream runs at {want:g} Hz: resample the "
+                                 f"signals (--resample HZ) or start a stream at {got:g} Hz")
+
+
+def wrap_forces(estimator: "ForceEstimator", source: Recording, forces: Mapping[str, np.ndarray],
+                latency_s: float, *, fs: float | None = None, t0: float | None = None) -> Recording:
+    """The result of every estimator: force channels [N] on the source's time base, with provenance.
+
+    Parameters
+    ----------
+    estimator : ForceEstimator
+        The method (its name and :meth:`~ForceEstimator.describe`).
+    source : Recording
+        The trace the forces were estimated from (name, provenance, time base).
+    forces : mapping of str to ndarray
+        ``force_{ax}`` [N] and any extra channels (e.g. interval bounds) [N].
+    latency_s : float
+        Pure delay of the estimate [s].
+    fs, t0 : float, optional
+        Time base [Hz], [s] when it differs from the source's.
+
+    Returns
+    -------
+    Recording
+        ``meta``: ``name``, ``method``, ``latency_s``, ``source``, ``sign`` and
+        ``provenance`` (the source's plus this step).
+    """
+    name = source.meta.get("name", "trace")
+    meta = {"name": f"{name}:{estimator.name}", "method": estimator.name, "latency_s": float(latency_s),
+            "source": name, "sign": "force on the workpiece (table) along +axis",
+            "provenance": list(source.meta.get("provenance", []))
+            + [f"estimate {estimator.name}: {estimator.describe()}; latency {latency_s * 1e3:.3f} ms"]}
+    # outputs of validated (finite) inputs: no copy, no re-validation on this hot path
+    return Recording.from_computed(dict(forces), {k: "N" for k in forces},
+                                   fs=source.fs if fs is None else fs, t0=source.t0 if t0 is None else t0,
+                                   meta=meta)
+
+
+class ForceEstimator(ABC):
+    """Base of every force estimator (ball screw: current, rigid, medob, vibration; linear motor:
+    model, lstm, hybrid).
+
+    Subclasses set :attr:`name` and implement :attr:`channel_names`,
+    :attr:`output_channels`, :meth:`fit`, :meth:`latency_s`,
+    :meth:`new_state` and :meth:`process`; :meth:`estimate` and
+    :meth:`stream` are shared.
     """
 
-    #: Short name used by the CLI and the benchmarks.
-    name = "linear"
-    #: Discretisation of the derivatives ("central" or "bilinear").
-    discretisation = "central"
+    #: Short name used by the registry, the CLI and the benchmarks.
+    name: ClassVar[str] = ""
+    #: ``"ballscrew"`` or ``"linear"``: the drive type whose signals the method reads.
+    drive: ClassVar[str] = ""
 
-    def __init__(self, axis: BallScrewAxis, signal: SignalParams | None = None, *, axis_name: str = "x") -> None:
-        self.axis = axis
-        self.signal = signal or SignalParams()
-        self.axis_name = axis_name
-        self.friction = FrictionTable.zero()
-        self.friction_map = None
-        self._designs: dict[float, ObserverDesign] = {}
-
-    # ----------------------------------------------------------------- design
-    def combination(self) -> ForceCombination:
-        """The estimating equation (overridden by each method)."""
-        raise NotImplementedError
-
-    def map_combination(self) -> ForceCombination:
-        """Combination used to build friction maps (the method's own by default)."""
-        return self.combination()
-
-    def design(self, fs: float) -> ObserverDesign:
-        """Discrete observer for sample rate ``fs`` [Hz] (cached)."""
-        if fs not in self._designs:
-            self._designs[fs] = discretise(self.combination(), self.axis, self.signal, fs, self.discretisation)
-        return self._designs[fs]
+    # ------------------------------------------------------------ the contract
+    @property
+    @abstractmethod
+    def channel_names(self) -> tuple[str, ...]:
+        """Input channels (canonical names, SI)."""
 
     @property
-    def channel_names(self) -> tuple[str, str, str]:
-        """Input channel names for this axis."""
-        return tuple(f"{self.axis_name}_{c}" for c in INPUT_CHANNELS)  # type: ignore[return-value]
+    @abstractmethod
+    def output_channels(self) -> tuple[str, ...]:
+        """Force channels produced (``force_x`` ...) [N]."""
 
-    @property
-    def output_channel(self) -> str:
-        """Name of the output channel (``force_x``...)."""
-        return f"force_{self.axis_name}"
-
-    # ------------------------------------------------------------ compensation
-    def fit(self, idle_runs: Sequence[Recording], **kwargs) -> "LinearForceEstimator":
-        """Build the friction map of this method from idling (air-cut) runs (Sec. 4).
+    @abstractmethod
+    def fit(self, runs: Sequence[Recording], **kwargs: Any) -> "ForceEstimator":
+        """Adapt the method to a machine from runs (friction map, identification, training).
 
         Parameters
         ----------
-        idle_runs : sequence of Recording
-            Runs over the same trajectory as the cuts, with no cutting.
+        runs : sequence of Recording
+            Air cuts / idle runs or training runs, as the method needs.
         **kwargs
-            Passed to :func:`drivesense.identify.friction.build_friction_map`
-            (e.g. ``bin_width`` [m]).
+            Method-specific settings.
 
         Returns
         -------
         self
         """
-        from drivesense.identify.friction import build_friction_map
 
-        fmap = build_friction_map(self, idle_runs, **kwargs)
-        self.friction_map = fmap
-        self.friction = fmap.table()
-        return self
+    @abstractmethod
+    def latency_s(self, fs: float) -> float:
+        """The method's own pure delay at sample rate ``fs`` [s] (a trace's declared delay adds to it).
 
-    def tare(self, recording: Recording, start: float, end: float) -> float:
-        """Take a constant tare from the uncompensated estimate over ``[start, end)`` [s].
-
-        For an axis that stands (cross-feed): the static friction and offsets
-        are whatever they were before the cut; their sum is removed.
-
-        Returns
-        -------
-        float
-            The tare [N], also stored in the estimator.
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
         """
-        self.friction = FrictionTable.zero()
-        self.friction_map = None
-        raw = self.estimate(recording)
-        t = raw.time
-        sel = (t >= start) & (t < end)
-        if not sel.any():
-            raise CoverageError(f"tare window {start}:{end} s lies outside the trace "
-                                f"({t[0]:.4g}-{t[-1]:.4g} s)")
-        settle = self.settle_time(recording.fs)
-        if start < t[0] + settle:
-            raise CoverageError(f"tare window starts at {start} s, inside the estimator's "
-                                f"start-up ({settle:.4g} s from the trace start)")
-        value = float(np.mean(raw[self.output_channel][sel]))
-        self.friction = FrictionTable([value])
-        return value
 
-    def settle_time(self, fs: float) -> float:
-        """Time the filters need to forget their start [s] (about 10 low-pass time constants)."""
-        return max(10.0 / self.signal.lpf_hz, 30.0 / fs)
+    @abstractmethod
+    def new_state(self, fs: float) -> Any:
+        """A fresh carried state for signals at ``fs`` [Hz] (constant size); refuses rates it cannot serve.
 
-    # ------------------------------------------------------------- estimation
-    def _new_state(self, fs: float) -> KernelState:
-        return KernelState(self.design(fs), self.friction)
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
 
-    def _inputs(self, recording: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        recording.require(*self.channel_names)
-        return tuple(recording[c] for c in self.channel_names)  # type: ignore[return-value]
+    @abstractmethod
+    def process(self, state: Any, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Forces [N] for the next samples, updating ``state`` in place.
 
-    def _wrap(self, recording: Recording, force: np.ndarray) -> Recording:
-        design = self.design(recording.fs)
-        meta = {"name": f"{recording.meta.get('name', 'trace')}:{self.name}", "method": self.name,
-                "latency_s": design.latency_s, "source": recording.meta.get("name", ""),
-                "provenance": list(recording.meta.get("provenance", []))
-                + [f"estimate {self.name}: latency {design.latency_s * 1e3:.3f} ms, "
-                   f"low-pass {self.signal.lpf_order}th order {self.signal.lpf_hz:g} Hz"]}
-        # a linear filter of validated (finite) inputs is finite: no copy, no re-validation on this hot path
-        return Recording._from_trusted({self.output_channel: force}, {self.output_channel: "N"},
-                                       fs=recording.fs, t0=recording.t0, meta=meta)
+        Parameters
+        ----------
+        state : object
+            From :meth:`new_state`.
+        arrays : mapping of str to ndarray
+            Every input channel [SI unit of the channel], equally long, float64, finite.
+        """
 
-    def check_length(self, recording: Recording) -> None:
-        """Raise :class:`SignalTooShortError` if the trace is shorter than the filters' start-up."""
-        need = int(np.ceil(3 * self.settle_time(recording.fs) * recording.fs))
-        if recording.n_samples < need:
-            raise SignalTooShortError(
-                f"trace '{recording.meta.get('name', 'trace')}' has {recording.n_samples} samples; "
-                f"{self.name} needs at least {need} ({need / recording.fs * 1e3:.1f} ms at "
-                f"{recording.fs:g} Hz) for its {self.signal.lpf_hz:g} Hz low-pass to settle")
+    # ------------------------------------------------------------ shared parts
+    def describe(self) -> str:
+        """One line for the provenance of an estimate (the method and its compensation)."""
+        return type(self).__name__
 
-    def estimate(self, recording: Recording) -> Recording:
-        """Estimate the process force on the table.
+    def check_trace(self, recording: Recording) -> None:
+        """Refuse a whole trace the method cannot estimate (too short, outside a friction map ...).
 
         Parameters
         ----------
         recording : Recording
-            Trace with ``{ax}_current_ref`` [A], ``{ax}_motor_angle`` [rad] and
-            ``{ax}_table_position`` [m].
+            The trace to estimate.
+        """
+
+    def prepare(self, recording: Recording) -> Recording:
+        """The trace as the method reads it (e.g. resampled to a learned model's rate); default: as is.
+
+        Parameters
+        ----------
+        recording : Recording
+            The trace to estimate.
+        """
+        return recording
+
+    def estimate(self, recording: Recording) -> Recording:
+        """Estimate the process force over a whole trace.
+
+        Parameters
+        ----------
+        recording : Recording
+            Trace with every input channel (:attr:`channel_names`, SI).
 
         Returns
         -------
         Recording
-            One channel ``force_{ax}`` [N] (force on the table along +axis),
-            ``meta["latency_s"]`` the pure delay of the estimate [s].
-        """
-        self.check_length(recording)
-        inputs = self._inputs(recording)
-        if self.friction_map is not None:
-            self.friction_map.check_coverage(inputs[2], recording.meta.get("name", "trace"))
-        state = self._new_state(recording.fs)
-        force = run_kernel(state, *inputs)
-        return self._wrap(recording, force)
+            :attr:`output_channels` [N] (force on the workpiece along +axis) on
+            the trace's time base; ``meta["latency_s"]`` the pure delay of the
+            estimate [s]: the method's own plus the trace's declared delay.
 
-    def stream(self, fs: float = 10_000.0) -> EstimatorStream:
-        """A streaming estimator for signals at ``fs`` [Hz] with the current compensation."""
-        return EstimatorStream(self, fs)
+        Raises
+        ------
+        MissingChannelError
+            Naming the missing input channels.
+        NotFittedError
+            When the method needs a model it does not have.
+        """
+        if not isinstance(recording, Recording):
+            raise InvalidSignalError(f"estimate() takes a Recording, got {type(recording).__name__}")
+        rec = self.prepare(recording)
+        arrays = read_inputs(rec, self.channel_names)
+        self.check_trace(rec)
+        forces = self.process(self.new_state(rec.fs), arrays)
+        return wrap_forces(self, rec, forces, self.latency_s(rec.fs) + declared_delay(rec))
+
+    def stream(self, fs: float, *, delay_s: float = 0.0) -> "ForceStream":
+        """A streaming estimator for chunks at ``fs`` [Hz]: the same numbers as :meth:`estimate`.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate of the chunks [Hz]; chunks at another rate are refused.
+        delay_s : float
+            Delay the incoming signals carry [s] (a logger's filter), added to
+            the declared latency.
+        """
+        return ForceStream(self, fs, delay_s=delay_s)
+
+
+class ForceStream:
+    """Chunk-by-chunk estimation with a carried state of constant size.
+
+    Parameters
+    ----------
+    estimator : ForceEstimator
+        The (fitted) method.
+    fs : float
+        Sample rate of the chunks [Hz].
+    delay_s : float
+        Delay the incoming signals carry [s].
+
+    Attributes
+    ----------
+    latency_s : float
+        Declared latency of every pushed sample's estimate [s].
+    samples_seen : int
+        Samples pushed so far.
+    """
+
+    def __init__(self, estimator: ForceEstimator, fs: float, *, delay_s: float = 0.0) -> None:
+        if isinstance(delay_s, bool) or not isinstance(delay_s, (int, float)) or not (delay_s >= 0):
+            raise ConfigError(f"stream delay must be a delay >= 0 [s], got {delay_s!r}")
+        self.estimator = estimator
+        self.fs = check_fs(fs)
+        self.state = estimator.new_state(self.fs)
+        self.latency_s = estimator.latency_s(self.fs) + float(delay_s)
+        self.samples_seen = 0
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """Input channels a chunk must hold."""
+        return self.estimator.channel_names
+
+    @property
+    def output_channels(self) -> tuple[str, ...]:
+        """Force channels returned [N]."""
+        return self.estimator.output_channels
+
+    def push_arrays(self, *arrays: np.ndarray) -> dict[str, np.ndarray]:
+        """Fast path: the input arrays in :attr:`channel_names` order (float64, finite, SI), unchecked.
+
+        Parameters
+        ----------
+        *arrays : ndarray
+            One array per input channel, equally long.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Forces [N].
+        """
+        out = self.estimator.process(self.state, dict(zip(self.estimator.channel_names, arrays)))
+        self.samples_seen += len(arrays[0]) if arrays else 0
+        return out
+
+    def push(self, chunk: Recording | Mapping[str, Any], *, fs: float | None = None):
+        """Process the next samples.
+
+        Parameters
+        ----------
+        chunk : Recording or mapping of str to array_like
+            The next samples of every input channel (SI).  A Recording's rate
+            must equal the stream's; a mapping's is checked from ``fs`` or its
+            ``"time"`` entry [s] when given.
+        fs : float, optional
+            Rate of a mapping chunk [Hz], checked against the stream's.
+
+        Returns
+        -------
+        Recording or dict of str to ndarray
+            The forces [N] for the chunk's samples: a Recording (on the
+            chunk's time base; its latency counts the delay the chunk
+            declares, else the stream's) for a Recording, a dict for a mapping.
+
+        Raises
+        ------
+        InvalidSignalError
+            A chunk at another rate, with NaN/inf, or with unequal lengths.
+        MissingChannelError
+            A chunk without an input channel.
+        """
+        names = self.estimator.channel_names
+        if isinstance(chunk, Recording):
+            _check_rate(chunk.fs, self.fs, "the chunk's rate")
+            arrays = read_inputs(chunk, names)
+            forces = self.estimator.process(self.state, arrays)
+            self.samples_seen += chunk.n_samples
+            latency = (self.estimator.latency_s(self.fs) + declared_delay(chunk) if "nc_delay_s" in chunk.meta
+                       else self.latency_s)
+            return wrap_forces(self.estimator, chunk, forces, latency)
+        arrays = check_chunk(chunk, names, fs=fs, stream_fs=self.fs)
+        forces = self.estimator.process(self.state, arrays)
+        self.samples_seen += len(next(iter(arrays.values()))) if arrays else 0
+        return forces
 
     def __repr__(self) -> str:
-        comp = "friction map" if self.friction_map is not None else (
-            "tare" if self.friction.values.size == 1 and self.friction.values[0] != 0 else "none")
-        return f"{type(self).__name__}(axis={self.axis_name!r}, compensation={comp})"
+        return (f"ForceStream({self.estimator.name}, fs={self.fs:g} Hz, latency={self.latency_s * 1e3:.3f} ms, "
+                f"samples={self.samples_seen})")

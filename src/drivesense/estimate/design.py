@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as sps
 
-from drivesense.estimate.signal import SignalParams
+from drivesense.machine.signal_chain import SignalParams
 from drivesense.machine.ballscrew import BallScrewAxis
 
 __all__ = ["ForceCombination", "ObserverDesign", "discretise", "lowpass_sos"]
@@ -58,38 +58,6 @@ class ForceCombination:
     c_t: float = 0.0
     k_t: float = 0.0
 
-    def raw(self, axis: BallScrewAxis, thrust, x_m, x_t, fs: float) -> np.ndarray:
-        """Unfiltered ``force_x`` from aligned signals by central differences.
-
-        Parameters
-        ----------
-        axis : BallScrewAxis
-            Axis (unused beyond documentation; thrust is already in N).
-        thrust : ndarray
-            Motor thrust ``K_t I / R`` aligned with the positions [N].
-        x_m, x_t : ndarray
-            Motor-side and table positions [m].
-        fs : float
-            Sample rate [Hz].
-
-        Returns
-        -------
-        ndarray
-            Same length as the inputs; the first and last samples repeat their
-            neighbours (central differences need both).
-        """
-        out = -self.c_I * np.asarray(thrust, float)
-        for x, m, c, k in ((x_m, self.m_m, self.c_m, self.k_m), (x_t, self.m_t, self.c_t, self.k_t)):
-            x = np.asarray(x, float)
-            v = np.empty_like(x)
-            a = np.empty_like(x)
-            v[1:-1] = (x[2:] - x[:-2]) * (0.5 * fs)
-            a[1:-1] = (x[2:] - 2.0 * x[1:-1] + x[:-2]) * fs * fs
-            v[0], v[-1] = v[1], v[-2]
-            a[0], a[-1] = a[1], a[-2]
-            out = out + m * a + c * v + k * x
-        return out
-
 
 @dataclass(frozen=True)
 class ObserverDesign:
@@ -106,9 +74,9 @@ class ObserverDesign:
     taps_friction : ndarray
         Taps on the friction-map value [-].
     sos : ndarray, shape (n, 6)
-        Common IIR cascade.
+        Common IIR cascade (second-order sections) [-].
     h_pole : float
-        Pole of the discrete current-loop model (0: no model).
+        Pole of the discrete current-loop model, ``exp(-omega_cc / fs)`` [-] (0: no model).
     latency_s : float
         Pure delay of the estimate against the true force [s].
     """
@@ -136,7 +104,19 @@ class ObserverDesign:
 
 
 def lowpass_sos(params: SignalParams, fs: float) -> np.ndarray:
-    """The estimator's Butterworth low-pass as second-order sections at ``fs`` [Hz]."""
+    """The estimator's Butterworth low-pass as second-order sections at ``fs`` [Hz].
+
+    Parameters
+    ----------
+    params : SignalParams
+        Order and cut-off of the low-pass.
+    fs : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+    """
     params.check_rate(fs)
     return sps.butter(int(params.lpf_order), params.lpf_hz, btype="low", fs=fs, output="sos")
 

@@ -73,7 +73,7 @@ class KernelState:
         self.scalars = np.zeros(3)  # [head, current-model output, previous current]
         self.started = False
         # steady-state IIR response to a unit constant input (for a transient-free start)
-        self._zi_unit = _sos_zi(self.sos)
+        self.zi_unit = _sos_zi(self.sos)
 
 
 def _sos_zi(sos: np.ndarray) -> np.ndarray:
@@ -100,7 +100,7 @@ def run_kernel(state: KernelState, current, angle, table) -> np.ndarray:
         return out
     f = state.friction
     if not state.started:
-        _prime(state.taps, state.hist, state.scalars, state.zi, state._zi_unit, state.h_pole,
+        _prime(state.taps, state.hist, state.scalars, state.zi, state.zi_unit, state.h_pole,
                current[0], angle[0], table[0], f.values, f.x0, f.dx)
         state.started = True
     _kernel(state.taps, state.sos, state.h_pole, f.values, f.x0, f.dx,

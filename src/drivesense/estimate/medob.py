@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from drivesense.estimate.base import LinearForceEstimator
+from drivesense.errors import ConfigError
+from drivesense.estimate.ballscrew import BallScrewEstimator
 from drivesense.estimate.design import ForceCombination
 
 __all__ = ["MEDOB"]
 
 
-class MEDOB(LinearForceEstimator):
+class MEDOB(BallScrewEstimator):
     """Disturbance observer on motor angle and table position.
 
     ``F_cut = (K_t I - J_r alpha_m - D_r omega_m - T_fric)/R - M_t a_t - C_t v_t - F_fric``
@@ -19,22 +20,22 @@ class MEDOB(LinearForceEstimator):
     by explicit numerical differentiation.  Under proportional damping it
     equals :class:`~drivesense.estimate.rigid.RigidBody` (Appendix), which the
     tests check.  Parameters as
-    :class:`~drivesense.estimate.base.LinearForceEstimator`.
+    :class:`~drivesense.estimate.ballscrew.BallScrewEstimator`.
     """
 
     name = "medob"
     discretisation = "bilinear"
 
     def combination(self) -> ForceCombination:
-        """Rotational terms ``J_r/R^2 = M_r``, ``D_r/R^2 = C_r`` on the motor side, M_t, C_t on the table."""
-        ax = self.axis
-        return ForceCombination(c_I=1.0, m_m=ax.M_r, c_m=ax.C_r, m_t=ax.M_t, c_t=ax.C_t)
+        """Rotational terms ``J_r/R^2 = M_r``, ``D_r/R^2 = C_r`` on the motor side, M_t, C_t on the table.
 
-    def check_length(self, recording) -> None:
-        """As the base class (``recording``: the trace), and require a low-pass of order >= 2."""
+        Raises
+        ------
+        ConfigError
+            For a low-pass of order < 2 (the observer needs ``s^2 Q(s)`` to be proper).
+        """
         if self.signal.lpf_order < 2:
-            from drivesense.errors import ConfigError
-
             raise ConfigError("signal parameter 'lpf_order' must be >= 2 for MEDOB "
                               "(the observer needs s^2 Q(s) to be proper)")
-        super().check_length(recording)
+        ax = self.axis
+        return ForceCombination(c_I=1.0, m_m=ax.M_r, c_m=ax.C_r, m_t=ax.M_t, c_t=ax.C_t)

@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-from drivesense.estimate.base import LinearForceEstimator
+from drivesense.estimate.ballscrew import BallScrewEstimator
 from drivesense.estimate.design import ForceCombination
 
 __all__ = ["RigidBody"]
 
 
-class RigidBody(LinearForceEstimator):
+class RigidBody(BallScrewEstimator):
     """Force from the rigid-body modal equation, Eq. 5.
 
     ``F_cut = K_t I/R - T_fric/R - F_fric - M_rigid a_rigid - C_rigid v_rigid``
     with ``x_rigid = (x_m + alpha x_t)/(1 + alpha)``, ``M_rigid = M_r + M_t``
     and ``C_rigid`` the (1, 1) element of the modal damping matrix.  No
     stiffness enters.  Derivatives by central differences.
-    Parameters as :class:`~drivesense.estimate.base.LinearForceEstimator`.
+    Parameters as :class:`~drivesense.estimate.ballscrew.BallScrewEstimator`.
     """
 
     name = "rigid"

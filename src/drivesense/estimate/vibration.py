@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from drivesense.estimate.base import LinearForceEstimator
+from drivesense.estimate.ballscrew import BallScrewEstimator
 from drivesense.estimate.design import ForceCombination
 
 __all__ = ["VibrationMode"]
 
 
-class VibrationMode(LinearForceEstimator):
+class VibrationMode(BallScrewEstimator):
     """Force from the vibration modal equation, Eq. 6.
 
     ``F_cut = -alpha [K_t I/R - T_fric/R + F_fric/alpha - (M_vib a_vib + C_vib v_vib + K_vib x_vib)]``
@@ -17,7 +17,7 @@ class VibrationMode(LinearForceEstimator):
     M_t (a_m - a_t)`` and ``alpha K_vib x_vib = (1 + alpha) K_r (x_m - x_t)``;
     the motor thrust enters with weight ``alpha`` only (0.08 for Table 1),
     which is why friction on the motor side barely disturbs it.
-    Parameters as :class:`~drivesense.estimate.base.LinearForceEstimator`.
+    Parameters as :class:`~drivesense.estimate.ballscrew.BallScrewEstimator`.
     """
 
     name = "vibration"

@@ -26,10 +26,10 @@ import numpy as np
 
 from drivesense import units as _units
 from drivesense.errors import ConfigError, IdentificationError, InvalidSignalError, UnitError
-from drivesense.machine.cutting_power import CutConditions, force_per_depth
+from drivesense.machine.cutting_power import CutConditions, CutTable, finite_vector, force_per_depth
 
 __all__ = ["SeeSawWarning", "TangentialFit", "CutTable", "fit_tangential_coefficients", "calibrate_from_power",
-           "average_power", "read_cut_table", "plot_calibration"]
+           "average_power", "read_cut_table", "fit_cut_table"]
 
 _HEADER_RE = re.compile(r"^(.*?)\s*\[([^\[\]]*)\]\s*$")
 
@@ -52,7 +52,7 @@ class TangentialFit:
     correlation : float
         Correlation of the two estimates, in [-1, 1] (about -1: see-saw).
     r2 : float
-        Coefficient of determination of the line.
+        Coefficient of determination of the line [-].
     rmse : float
         Residual standard deviation of F_t/a [N/m].
     h_avg, force_per_depth : ndarray
@@ -127,16 +127,6 @@ class TangentialFit:
                 "see_saw": self.see_saw, "warnings": list(self.warnings)}
 
 
-def _vector(values, name: str) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=float).ravel()
-    except (TypeError, ValueError) as exc:
-        raise InvalidSignalError(f"'{name}' must be numeric: {exc}") from None
-    if not np.all(np.isfinite(arr)):
-        raise InvalidSignalError(f"'{name}' holds non-finite values (NaN or inf)")
-    return arr
-
-
 def fit_tangential_coefficients(h_avg, force_per_depth, *, weights=None, max_correlation: float = 0.99,
                                 max_relative_se: float = 0.25, warn: bool = True) -> TangentialFit:
     """Fit ``F_t/a = K_tc h_avg + K_te`` by (weighted) least squares (the paper's Fig. 4).
@@ -148,12 +138,12 @@ def fit_tangential_coefficients(h_avg, force_per_depth, *, weights=None, max_cor
     force_per_depth : array_like
         Average tangential force per axial depth of each cut [N/m] (Eq. 5).
     weights : array_like, optional
-        Relative weights (e.g. 1 / variance); default equal.
+        Relative weights [-] (e.g. proportional to 1 / variance); default equal.
     max_correlation : float
-        See-saw threshold on ``|corr(K_tc, K_te)|`` (default 0.99, i.e. the h_avg values vary by
+        See-saw threshold on ``|corr(K_tc, K_te)|`` [-] (default 0.99, i.e. the h_avg values vary by
         less than about 14 % of their mean).
     max_relative_se : float
-        A coefficient whose standard error exceeds this fraction of its value is reported as
+        A coefficient whose standard error exceeds this fraction of its value [-] is reported as
         poorly determined.
     warn : bool
         Issue :class:`SeeSawWarning` (Python warning) as well as filling ``warnings``.
@@ -169,15 +159,15 @@ def fit_tangential_coefficients(h_avg, force_per_depth, *, weights=None, max_cor
     InvalidSignalError
         Non-finite or mismatched inputs, negative h_avg or weights.
     """
-    h = _vector(h_avg, "h_avg")
-    y = _vector(force_per_depth, "force_per_depth")
+    h = finite_vector(h_avg, "h_avg")
+    y = finite_vector(force_per_depth, "force_per_depth")
     if h.size != y.size:
         raise InvalidSignalError(f"'h_avg' has {h.size} values, 'force_per_depth' {y.size}")
     if h.size == 0:
         raise IdentificationError("no calibration cuts: K_tc and K_te need cuts at two or more chip thicknesses")
     if np.any(h < 0):
         raise InvalidSignalError(f"'h_avg' must be >= 0, got min {h.min()!r} m")
-    w = np.ones_like(h) if weights is None else _vector(weights, "weights")
+    w = np.ones_like(h) if weights is None else finite_vector(weights, "weights")
     if w.size != h.size or np.any(w <= 0):
         raise InvalidSignalError("'weights' must be positive, one per cut")
     if h.size < 2 or np.ptp(h) <= 1e-9 * max(h.max(), 1e-300):
@@ -228,7 +218,7 @@ def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, runout=None,
     warn : bool
         Issue :class:`SeeSawWarning` when the cuts cannot separate the coefficients.
     runout : ToolRunout, optional
-        The tool's measured runout (:mod:`drivesense.identify.tool_runout`): the chip thickness
+        The tool's measured runout (:mod:`drivesense.machine.tool_runout`): the chip thickness
         and force per depth of each cut then come from the mechanistic model with that runout
         (flutes that lose contact no longer rub) instead of Eq. 4-5.
     **kw
@@ -242,10 +232,10 @@ def calibrate_from_power(cuts, cutting_power, *, warn: bool = True, runout=None,
     if not cuts:
         raise IdentificationError("no calibration cuts: K_tc and K_te need cuts at two or more chip thicknesses")
     if runout is not None:
-        from drivesense.identify.tool_runout import power_bases
+        from drivesense.machine.tool_runout import power_bases
 
         b_c, b_e = power_bases(cuts, runout)
-        return fit_tangential_coefficients(b_c / b_e, _vector(cutting_power, "cutting_power") / b_e, warn=warn, **kw)
+        return fit_tangential_coefficients(b_c / b_e, finite_vector(cutting_power, "cutting_power") / b_e, warn=warn, **kw)
     h = np.array([c.average_chip_thickness for c in cuts])
     return fit_tangential_coefficients(h, force_per_depth(cutting_power, cuts), warn=warn, **kw)
 
@@ -283,7 +273,7 @@ def average_power(recording, start: float, end: float, channel: str = "spindle_p
 
 
 # ---------------------------------------------------------------------------- tables
-def _read_table(path, spec: dict[str, str | None]) -> tuple[dict[str, np.ndarray], dict[str, list[str]], int]:
+def read_unit_table(path, spec: dict[str, str | None]) -> tuple[dict[str, np.ndarray], dict[str, list[str]], int]:
     """Read a one-row-per-item CSV with ``name [unit]`` headers.
 
     ``spec`` maps known column names to their quantity (None: a plain number, unit ``1``).
@@ -348,90 +338,26 @@ _CUT_COLUMNS = {"diameter": _units.LENGTH, "flutes": None, "axial_depth": _units
                 "cutting_power": _units.POWER, "calibration": None, "distance": _units.LENGTH}
 
 
-@dataclass(frozen=True, eq=False)
-class CutTable:
-    """Calibration cuts with their measured power, optionally grouped into calibrations along a tool's life.
+def fit_cut_table(table: CutTable, idx=None, *, warn: bool = True, **kw) -> TangentialFit:
+    """Calibrate K_tc and K_te from all cuts of a cut table or the cuts `idx`.
 
     Parameters
     ----------
-    cuts : tuple of CutConditions
-        The cuts (SI).
-    cutting_power : ndarray
-        Average cutting power of each cut [W] (spindle power minus air-cut power).
-    calibration : ndarray of int, optional
-        Calibration number of each cut (cuts of one calibration are fitted together).
-    distance : ndarray, optional
-        Distance the tool had cut when each cut was made [m] (the wear clock).
-    name : str
-        A label (the file stem when read).
+    table : CutTable
+        Calibration cuts with their cutting power.
+    idx : array_like of int, optional
+        Indices of the cuts to use (default all).
+    warn : bool
+        Issue :class:`SeeSawWarning` where due.
+    **kw
+        Passed to :func:`fit_tangential_coefficients` (e.g. ``runout``).
+
+    Returns
+    -------
+    TangentialFit
     """
-
-    cuts: tuple
-    cutting_power: np.ndarray
-    calibration: np.ndarray | None = None
-    distance: np.ndarray | None = None
-    name: str = ""
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "cuts", tuple(self.cuts))
-        n = len(self.cuts)
-        if n == 0:
-            raise InvalidSignalError(f"cut table {self.name!r} holds no cuts")
-        p = _vector(self.cutting_power, "cutting_power")
-        if p.size != n:
-            raise InvalidSignalError(f"'cutting_power' has {p.size} values for {n} cuts")
-        object.__setattr__(self, "cutting_power", p)
-        for attr in ("calibration", "distance"):
-            v = getattr(self, attr)
-            if v is not None:
-                v = _vector(v, attr)
-                if v.size != n:
-                    raise InvalidSignalError(f"'{attr}' has {v.size} values for {n} cuts")
-                if attr == "distance" and np.any(v < 0):
-                    raise InvalidSignalError(f"'distance' must be >= 0 m, got min {v.min()!r}")
-                object.__setattr__(self, attr, v.astype(int) if attr == "calibration" else v)
-
-    def __len__(self) -> int:
-        return len(self.cuts)
-
-    def groups(self) -> list[tuple[float, np.ndarray]]:
-        """Cut indices of each calibration, in order of distance.
-
-        Returns
-        -------
-        list of (distance [m], index array)
-            One entry per calibration (by ``calibration`` number, else by ``distance``, else one for all);
-            the distance is the mean distance of its cuts (0 without a distance column).
-        """
-        n = len(self.cuts)
-        key = self.calibration if self.calibration is not None else self.distance
-        if key is None:
-            return [(0.0, np.arange(n))]
-        out = []
-        for k in np.unique(key):
-            idx = np.flatnonzero(key == k)
-            d = float(np.mean(self.distance[idx])) if self.distance is not None else float(k)
-            out.append((d, idx))
-        return sorted(out, key=lambda g: g[0])
-
-    def fit(self, idx=None, *, warn: bool = True, **kw) -> TangentialFit:
-        """Calibrate K_tc and K_te from all cuts or the cuts `idx`.
-
-        Parameters
-        ----------
-        idx : array_like of int, optional
-            Indices of the cuts to use (default all).
-        warn : bool
-            Issue :class:`SeeSawWarning` where due.
-        **kw
-            Passed to :func:`fit_tangential_coefficients`.
-
-        Returns
-        -------
-        TangentialFit
-        """
-        idx = np.arange(len(self.cuts)) if idx is None else np.asarray(idx, dtype=int)
-        return calibrate_from_power([self.cuts[i] for i in idx], self.cutting_power[idx], warn=warn, **kw)
+    idx = np.arange(len(table.cuts)) if idx is None else np.asarray(idx, dtype=int)
+    return calibrate_from_power([table.cuts[i] for i in idx], table.cutting_power[idx], warn=warn, **kw)
 
 
 def read_cut_table(path, *, diameter: float | None = None, flutes: int | None = None,
@@ -472,7 +398,7 @@ def read_cut_table(path, *, diameter: float | None = None, flutes: int | None = 
         No rows, a non-number, or a unit that does not fit the column.
     """
     path = Path(path)
-    cols, _, n = _read_table(path, _CUT_COLUMNS)
+    cols, _, n = read_unit_table(path, _CUT_COLUMNS)
 
     def column(name, default=None, label=None):
         if name in cols:
@@ -514,46 +440,3 @@ def read_cut_table(path, *, diameter: float | None = None, flutes: int | None = 
             raise ConfigError(f"{path.name}, row {i + 1}: {exc}") from None
         cuts.append(cut)
     return CutTable(tuple(cuts), p, cols.get("calibration"), cols.get("distance"), name=path.stem)
-
-
-def plot_calibration(fit: TangentialFit, path, *, title: str | None = None) -> Path:
-    """Write a PNG of the calibration regression, F_t/a [N/mm] against h_avg [mm] (Fig. 4 style).
-
-    Parameters
-    ----------
-    fit : TangentialFit
-        The fit and its data.
-    path : str or Path
-        Output PNG.
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.plot import _pyplot, _save
-
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 5))
-    h = fit.h_avg * 1e3
-    ax.plot(h, fit.force_per_depth * 1e-3, "o", color="tab:blue", label="calibration cuts")
-    hx = np.linspace(0.0, h.max() * 1.1, 100)
-    ax.plot(hx, fit.predict(hx * 1e-3) * 1e-3, color="black", lw=1.2,
-            label=f"F_t/a = {fit.Ktc * 1e-6:.0f} h_avg + {fit.Kte * 1e-3:.1f}")
-    text = (f"K_tc = {fit.Ktc * 1e-6:.1f} ± {fit.Ktc_se * 1e-6:.2g} N/mm²\n"
-            f"K_te = {fit.Kte * 1e-3:.2f} ± {fit.Kte_se * 1e-3:.2g} N/mm\n"
-            f"R² = {fit.r2:.4f}, corr(K_tc, K_te) = {fit.correlation:+.3f}")
-    if fit.see_saw:
-        text += "\nsee-saw: h_avg span too small"
-    ax.text(0.03, 0.97, text, transform=ax.transAxes, va="top", fontsize=9,
-            color="tab:red" if fit.see_saw else "black",
-            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"})
-    ax.set_xlabel("average chip thickness h_avg [mm]")
-    ax.set_ylabel("average tangential force per depth F_t/a [N/mm]")
-    ax.set_xlim(0, None)
-    ax.set_ylim(0, None)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(title or f"Tangential force model calibration ({fit.n} cuts, Eq. 5)")
-    return _save(plt, fig, path)

@@ -27,10 +27,11 @@ import numpy as np
 
 from drivesense import units as _units
 from drivesense.errors import ConfigError, CoverageError, IdentificationError, InvalidSignalError, MissingChannelError
-from drivesense.identify.coefficients import _read_table
+from drivesense.identify.coefficients import read_unit_table
+from drivesense.io import JsonFileMixin
 
 __all__ = ["FeedCuts", "FeedPowerModel", "SpeedFit", "read_feed_cuts", "fit_feed_power", "per_speed_fits",
-           "cross_validate", "plot_feed_power"]
+           "cross_validate"]
 
 _COLUMNS = {"slide_speed": _units.VELOCITY, "total_power": _units.POWER, "tare_power": _units.POWER,
             "cutting_power": _units.POWER, "force_x": _units.FORCE, "slide_position": _units.LENGTH}
@@ -132,6 +133,15 @@ class FeedCuts:
             raise MissingChannelError("no 'tare_power' for the cuts and no tare model to take it from")
         return self.total_power - np.asarray(t, dtype=float)
 
+    def speed_groups(self) -> list[np.ndarray]:
+        """Indices of the cuts at each slide speed (speeds within 1 % share a group), by increasing speed.
+
+        Returns
+        -------
+        list of ndarray of int
+        """
+        return _groups(self.slide_speed)
+
     def subset(self, idx) -> "FeedCuts":
         """The cuts at indices `idx`.
 
@@ -174,7 +184,7 @@ def read_feed_cuts(path) -> FeedCuts:
         No rows, a non-number, a unit that does not fit the column.
     """
     path = Path(path)
-    cols, text, n = _read_table(path, _COLUMNS)
+    cols, text, n = read_unit_table(path, _COLUMNS)
     if "slide_speed" not in cols:
         raise ConfigError(f"{path.name}: no 'slide_speed' column (e.g. 'slide_speed [mm/min]')")
     labels = tuple(text.get("cut", ())) or tuple(str(i + 1) for i in range(n))
@@ -199,7 +209,7 @@ class SpeedFit:
     intercept : float
         [N].
     r2 : float
-        Coefficient of determination (NaN with fewer than 3 cuts).
+        Coefficient of determination [-] (NaN with fewer than 3 cuts).
     cuts : int
         Number of cuts.
     """
@@ -252,13 +262,13 @@ def per_speed_fits(cuts: FeedCuts) -> list[SpeedFit]:
 
 
 @dataclass(frozen=True)
-class FeedPowerModel:
+class FeedPowerModel(JsonFileMixin):
     """``F_x = (a0 + a1 v) P_cut / v + F0`` with its calibrated range.
 
     Parameters
     ----------
     a0 : float
-        Efficiency at zero speed (dimensionless; sign = force direction).
+        Efficiency at zero speed [-] (sign = force direction).
     a1 : float
         Efficiency slope with slide speed [s/m].
     f0 : float
@@ -284,6 +294,9 @@ class FeedPowerModel:
     position_range: tuple | None = None
     rms_error: float = float("nan")
     cuts: int = 0
+
+    #: Named in the errors of :meth:`load` (:class:`~drivesense.io.JsonFileMixin`).
+    json_what = "model file"
 
     def efficiency(self, slide_speed):
         """``eta(v) = |a0 + a1 v|`` (the paper's efficiency; includes the power sensor's scale).
@@ -378,39 +391,6 @@ class FeedPowerModel:
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"feed-power model: missing or bad field ({exc})") from None
 
-    def save(self, path) -> Path:
-        """Write the model as JSON.
-
-        Parameters
-        ----------
-        path : str or Path
-            Target file (replaced atomically).
-
-        Returns
-        -------
-        Path
-        """
-        from drivesense.io import write_json_file
-
-        return write_json_file(path, self.to_dict())
-
-    @classmethod
-    def load(cls, path) -> "FeedPowerModel":
-        """Read a model written by :meth:`save`.
-
-        Parameters
-        ----------
-        path : str or Path
-            JSON file.
-
-        Returns
-        -------
-        FeedPowerModel
-        """
-        from drivesense.io import read_json_file
-
-        return cls.from_dict(read_json_file(path, "model file"))
-
 
 def fit_feed_power(cuts: FeedCuts) -> FeedPowerModel:
     """Calibrate ``F_x = (a0 + a1 v) P_cut / v + F0`` on cuts with a reference force.
@@ -497,55 +477,3 @@ def cross_validate(cuts: FeedCuts, *, speeds_out=None) -> dict:
     loco = np.array(loco)
     return {"loco_errors": [None if not math.isfinite(e) else float(e) for e in loco],
             "loco_mean_error": float(np.nanmean(loco)), "loso": loso}
-
-
-def plot_feed_power(cuts: FeedCuts, model: FeedPowerModel, path, *, title: str | None = None) -> Path:
-    """Write a PNG of force against cutting power per slide speed (the paper's Fig. 14) with the model.
-
-    Parameters
-    ----------
-    cuts : FeedCuts
-        Cuts with ``force_x``.
-    model : FeedPowerModel
-        The fitted model.
-    path : str or Path
-        Output PNG.
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.plot import _pyplot, _save
-
-    plt = _pyplot()
-    fig, (ax, ax_e) = plt.subplots(1, 2, figsize=(12, 5))
-    p = cuts.power()
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    fits = {round(s.speed, 9): s for s in per_speed_fits(cuts)}
-    for k, g in enumerate(_groups(cuts.slide_speed)):
-        v = float(np.mean(cuts.slide_speed[g]))
-        col = colours[k % len(colours)]
-        ax.plot(p[g], cuts.force_x[g], "o", color=col)
-        px = np.linspace(0.0, p[g].max() * 1.1, 50)
-        fit = fits.get(round(v, 9))
-        label = f"{v * 6e4:.0f} mm/min ({v * 60 / 0.0254:.0f} in/min)"
-        if fit is not None and math.isfinite(fit.r2):
-            label += f", R² = {fit.r2:.3f}"
-        ax.plot(px, (model.a0 + model.a1 * v) * px / v + model.f0, color=col, lw=1, label=label)
-    ax.set_xlabel("cutting power P_total - P_tare [W]")
-    ax.set_title("lines: the fitted model; R²: each speed's own straight line", fontsize=9)
-    ax.set_ylabel("average x-force [N]")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    vx = np.linspace(*model.speed_range, 50)
-    ax_e.plot(vx * 6e4, model.efficiency(vx), color="black")
-    for g in _groups(cuts.slide_speed):
-        v = float(np.mean(cuts.slide_speed[g]))
-        ax_e.plot(v * 6e4, model.efficiency(v), "o", color="black")
-    ax_e.set_xlabel("slide speed [mm/min]")
-    ax_e.set_ylabel("efficiency eta(v) (incl. sensor scale)")
-    ax_e.grid(alpha=0.3)
-    fig.suptitle(title or f"Feed-drive power to x-force: F0 = {model.f0:.1f} N, rms error {model.rms_error:.1f} N")
-    return _save(plt, fig, path)

@@ -33,7 +33,7 @@ from scipy import optimize
 from scipy import signal as sps
 
 from drivesense.errors import ConfigError, IdentificationError, InvalidSignalError
-from drivesense.estimate.signal import SignalParams
+from drivesense.machine.signal_chain import SignalParams
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.recording import Recording
 
@@ -242,7 +242,7 @@ class FRFFit:
     iterations : int
         Jacobian evaluations of the iteration.
     normalised_rms : float
-        RMS of the coherence-weighted residual (about 1 when the model
+        RMS of the coherence-weighted residual [-] (about 1 when the model
         explains the data down to the measurement noise).
     seconds : float
         Time the fit took [s].
@@ -262,7 +262,13 @@ class FRFFit:
     measured: MeasuredFRF = field(repr=False)
 
     def model(self, freq=None):
-        """Fitted model responses ``(motor, table)`` at ``freq`` [Hz] (default: the measured ones)."""
+        """Fitted model responses ``(motor, table)`` at ``freq`` [Hz] (default: the measured ones).
+
+        Parameters
+        ----------
+        freq : array_like, optional
+            Frequencies [Hz]; default the measured ones.
+        """
         f = self.measured.freq if freq is None else freq
         return model_frf(self.axis, f, T_a=self.signal.T_a, T_b=self.signal.T_b,
                          omega_cc=self.signal.omega_cc, fs=self.measured.fs)
@@ -330,7 +336,7 @@ def fit_frf(measured: MeasuredFRF, *, K_t: float, lead: float, fixed: dict | Non
     omega_cc : float
         Current-loop bandwidth [rad/s] (catalogue, fixed).
     max_rel_std : float
-        A free parameter whose relative standard deviation exceeds this is
+        A free parameter whose relative standard deviation [-] exceeds this is
         declared undetermined.
 
     Returns

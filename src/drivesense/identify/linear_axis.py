@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -46,7 +45,7 @@ from drivesense.recording import Recording
 
 __all__ = ["IdentificationReport", "identify_axes", "run_identification", "constant_velocity_segments",
            "direction_averaged", "fit_restoring", "fit_cogging_table", "fit_stribeck", "fit_masses", "fit_presliding",
-           "STACKING", "plot_identification"]
+           "STACKING"]
 
 #: Which own masses each motor moves (Eq. 2 / 8-10): rows x, y, z; columns m_x, m_y, m_z.
 STACKING = np.array([[1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
@@ -106,7 +105,7 @@ def direction_averaged(position_pos, force_pos, position_neg, force_neg) -> tupl
     position_pos, force_pos : array_like
         Position [m] and motor force [N] of the pass in +direction.
     position_neg, force_neg : array_like
-        The same for the pass in -direction.
+        Position [m] and motor force [N] of the pass in -direction.
 
     Returns
     -------
@@ -512,43 +511,3 @@ def identify_axes(air_moves: Sequence[Recording], **kwargs) -> ThreeAxisModel:
     ThreeAxisModel
     """
     return run_identification(air_moves, **kwargs).model
-
-
-def plot_identification(report: IdentificationReport, path) -> Path:
-    """Figure of the identification: cogging table (top) and Stribeck curve with the segment means (bottom) per axis.
-
-    Parameters
-    ----------
-    report : IdentificationReport
-        Result of :func:`run_identification`.
-    path : str or Path
-        PNG to write.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.plot import _pyplot, _save
-
-    plt = _pyplot()
-    fig, panels = plt.subplots(2, 3, figsize=(12, 6.5))
-    for j, ax in enumerate(AXES):
-        axis = report.model.axis(ax)
-        u = np.arange(axis.cogging.size + 1) / axis.cogging.size * axis.pole_pitch
-        panels[0, j].plot(u * 1e3, np.append(axis.cogging, axis.cogging[0]), color="tab:blue")
-        panels[0, j].set_title(f"{ax}: cogging, 1st harmonic {axis.cogging_amplitudes(1)[0]:.1f} N", fontsize=9)
-        panels[0, j].set_xlabel("position mod pole pitch [mm]")
-        panels[0, j].set_ylabel("F_co [N]")
-        data = report.steps[ax]["friction"].get("data", {})
-        v = np.asarray(data.get("velocity_m_s", []))
-        vv = np.linspace(-max(np.abs(v).max() if v.size else 0.1, 1e-3), max(np.abs(v).max() if v.size else 0.1, 1e-3), 801)
-        panels[1, j].plot(vv * 1e3, axis.friction_force(vv), color="tab:red", label="Eq. 4 fit")
-        if v.size:
-            panels[1, j].plot(v * 1e3, data["force_n"], "k.", label="segment means (Eq. 5)")
-        panels[1, j].set_xscale("symlog", linthresh=1.0)
-        panels[1, j].set_title(f"{ax}: F_C {axis.F_C:.1f} N, F_br {axis.F_br:.1f} N, v_s {axis.v_s * 1e3:.2g} mm/s",
-                               fontsize=9)
-        panels[1, j].set_xlabel("velocity [mm/s]")
-        panels[1, j].set_ylabel("F_fr [N]")
-        panels[1, j].legend(fontsize=7)
-    return _save(plt, fig, path)

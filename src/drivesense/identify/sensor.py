@@ -19,15 +19,14 @@ amplitudes:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy import signal as _signal
 
 from drivesense.errors import ConfigError, IdentificationError, InvalidSignalError, SignalTooShortError
+from drivesense.io import JsonFileMixin
 
-__all__ = ["SensorCalibration", "ratio_spectrum", "check_linearity", "calibrate_sensor", "deconvolution_residual",
-           "plot_sensor_calibration"]
+__all__ = ["SensorCalibration", "ratio_spectrum", "check_linearity", "calibrate_sensor", "deconvolution_residual"]
 
 G = 9.80665
 _VERSION = 1
@@ -121,7 +120,7 @@ def check_linearity(pairs, *, fs: float | None = None, band=(100.0, 4000.0), tol
     band : (float, float)
         Frequency band [Hz] of the comparison.
     tolerance : float
-        Largest allowed relative spread of the band gains.
+        Largest allowed relative spread of the band gains [-].
     nperseg : int
         Welch segment length.
     sensor_channel, reference_channel : str
@@ -153,7 +152,7 @@ def check_linearity(pairs, *, fs: float | None = None, band=(100.0, 4000.0), tol
 
 
 @dataclass(eq=False)
-class SensorCalibration:
+class SensorCalibration(JsonFileMixin):
     """A cheap sensor's response and its inverse (deconvolution) filter.
 
     Attributes
@@ -167,14 +166,14 @@ class SensorCalibration:
     response : ndarray of complex
         Ratio spectrum H [V/(m/s^2)] pooled over the pairs.
     coherence : ndarray
-        Pooled coherence.
+        Pooled coherence [-].
     taps : ndarray
-        FIR deconvolution filter (V -> m/s^2), linear phase; its delay of ``(len(taps) - 1) / 2``
-        samples is removed by :meth:`apply`.
+        FIR deconvolution filter (V -> m/s^2) [(m/s^2)/V], linear phase; its delay of
+        ``(len(taps) - 1) / 2`` samples is removed by :meth:`apply`.
     linearity : dict
         Result of :func:`check_linearity`.
     per_pair : list of ndarray
-        |H| of each pair (for the Fig. 6 plot).
+        |H| of each pair [V/(m/s^2)] (for the Fig. 6 plot).
     """
 
     fs: float
@@ -185,6 +184,10 @@ class SensorCalibration:
     taps: np.ndarray
     linearity: dict = field(default_factory=dict)
     per_pair: list = field(default_factory=list, repr=False)
+
+    #: Named in the errors of :meth:`load`; the file is written compact (:class:`~drivesense.io.JsonFileMixin`).
+    json_what = "calibration file"
+    json_indent = None
 
     def apply(self, sensor, fs: float | None = None, *, channel: str = "electret", out: str = "acceleration"):
         """Deconvolve sensor samples into acceleration [m/s^2].
@@ -264,39 +267,6 @@ class SensorCalibration:
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"sensor calibration: missing or bad field ({exc})") from None
 
-    def save(self, path) -> Path:
-        """Write the calibration as JSON.
-
-        Parameters
-        ----------
-        path : str or Path
-            Target file (replaced atomically).
-
-        Returns
-        -------
-        Path
-        """
-        from drivesense.io import write_json_file
-
-        return write_json_file(path, self.to_dict(), indent=None)
-
-    @classmethod
-    def load(cls, path) -> "SensorCalibration":
-        """Read a calibration written by :meth:`save`.
-
-        Parameters
-        ----------
-        path : str or Path
-            JSON file.
-
-        Returns
-        -------
-        SensorCalibration
-        """
-        from drivesense.io import read_json_file
-
-        return cls.from_dict(read_json_file(path, "calibration file"))
-
 
 def calibrate_sensor(pairs, *, fs: float | None = None, band=(100.0, 4000.0), nperseg: int = 4096,
                      regularisation: float = 1e-3, tolerance: float = 0.05, sensor_channel: str = "electret",
@@ -314,9 +284,9 @@ def calibrate_sensor(pairs, *, fs: float | None = None, band=(100.0, 4000.0), np
     nperseg : int
         Welch segment length = FIR length - 1 (even, >= 256).
     regularisation : float
-        Floor of the Tikhonov term relative to the median |H|^2 in the band.
+        Floor of the Tikhonov term relative to the median |H|^2 in the band [-].
     tolerance : float
-        Linearity tolerance (relative spread of the band gains).
+        Linearity tolerance (relative spread of the band gains) [-].
     sensor_channel, reference_channel : str
         Channel names in Recordings.
 
@@ -404,54 +374,3 @@ def deconvolution_residual(calibration: SensorCalibration, sensor, reference, *,
         raise SignalTooShortError(f"{a.size} samples; the residual needs more than {3 * m}")
     a, b = a[m:-m], b[m:-m]
     return float(np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b ** 2)))
-
-
-def plot_sensor_calibration(calibration: SensorCalibration, path, *, title: str | None = None) -> Path:
-    """Write a PNG: amplitude ratio per pair (Fig. 6 style), phase, coherence and the inverse filter's gain.
-
-    Parameters
-    ----------
-    calibration : SensorCalibration
-        The calibration.
-    path : str or Path
-        Output PNG.
-    title : str, optional
-        Figure title.
-
-    Returns
-    -------
-    Path
-    """
-    from drivesense.plot import _pyplot, _save
-
-    plt = _pyplot()
-    cal = calibration
-    f = cal.freq
-    sel = f <= min(1.25 * cal.band[1], 0.5 * cal.fs)
-    fig, (ax_a, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
-                                          gridspec_kw={"height_ratios": [3, 2, 1]})
-    amps = cal.linearity.get("amplitudes_g", [None] * len(cal.per_pair))
-    for mag, amp in zip(cal.per_pair, amps):
-        ax_a.plot(f[sel], mag[sel] * G * 1e3, lw=0.7, label=f"{amp:.1f} g" if amp else None)
-    ax_a.plot(f[sel], np.abs(cal.response[sel]) * G * 1e3, color="black", lw=1.3, label="pooled")
-    inv = np.abs(np.fft.rfft(cal.taps, n=2 * (f.size - 1)))
-    ax_i = ax_a.twinx()
-    ax_i.plot(f[sel], inv[sel] / G, color="tab:gray", ls="--", lw=1, label="inverse filter")
-    ax_i.set_ylabel("inverse filter [g/V]", color="tab:gray")
-    ax_a.set_ylabel("sensor / reference [mV/g]")
-    ax_a.legend(fontsize=8, loc="upper left", title="shaker level", title_fontsize=8)
-    ax_p.plot(f[sel], np.degrees(np.angle(cal.response[sel])), color="black", lw=1)
-    ax_p.set_ylabel("phase [deg]")
-    ax_c.plot(f[sel], cal.coherence[sel], color="tab:green", lw=1)
-    ax_c.set_ylabel("coherence")
-    ax_c.set_ylim(0, 1.05)
-    ax_c.set_xlabel("frequency [Hz]")
-    for ax in (ax_a, ax_p, ax_c):
-        ax.axvspan(*cal.band, color="tab:blue", alpha=0.06)
-        ax.grid(alpha=0.3)
-    lin = cal.linearity
-    note = "" if lin.get("linear") is None else (f"; gain spread {100 * lin['spread']:.1f} % over "
-                                                 f"{min(amps):.1f}-{max(amps):.1f} g: "
-                                                 + ("linear" if lin["linear"] else "NOT linear"))
-    fig.suptitle(title or f"Cheap-sensor calibration (ratio spectrum, Fig. 6){note}")
-    return _save(plt, fig, path)

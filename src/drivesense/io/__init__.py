@@ -12,7 +12,7 @@ import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
 from ..errors import ConfigError
 
@@ -22,9 +22,12 @@ __all__ = [
     "save_netcdf",
     "load_netcdf",
     "read_recording",
+    "write_recording",
     "atomic_output",
+    "write_text_file",
     "write_json_file",
     "read_json_file",
+    "JsonFileMixin",
 ]
 
 
@@ -63,6 +66,28 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def write_text_file(path: str | Path, text: str) -> Path:
+    """Write ``text`` as a UTF-8 file, atomically (see :func:`atomic_output`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file (its folder is created; replaced only once fully written).
+    text : str
+        The whole content.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
 def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Path:
     """Write ``payload`` as JSON, atomically (numpy scalars written as floats).
 
@@ -77,11 +102,7 @@ def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Pat
     """
     import json
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=indent, default=float) + "\n", encoding="utf-8")
-    return path
+    return write_text_file(path, json.dumps(payload, indent=indent, default=float) + "\n")
 
 
 def _parse_text_file(path: str | Path, what: str, parse, errors: tuple, problem: str):
@@ -137,6 +158,58 @@ def read_toml(path: str | Path, what: str) -> dict:
 
     return _parse_text_file(path, what, tomllib.loads, (tomllib.TOMLDecodeError,), "not valid TOML")
 
+
+class JsonFileMixin:
+    """JSON :meth:`save` and :meth:`load` for a class with ``to_dict()`` and ``from_dict(data)``.
+
+    A class using it names its files in :attr:`json_what` (read errors say
+    e.g. ``model file 'm.json': not JSON``) and may write them compact with
+    :attr:`json_indent` ``= None``.
+    """
+
+    #: What the file is, named in every read error (e.g. ``"model file"``).
+    json_what: ClassVar[str] = "JSON file"
+    #: Indentation of the written JSON [characters per level]; None: compact, one line.
+    json_indent: ClassVar[int | None] = 2
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``to_dict()`` as JSON.
+
+        Parameters
+        ----------
+        path : str or Path
+            Target file (replaced atomically; its folder is created).
+
+        Returns
+        -------
+        Path
+        """
+        return write_json_file(path, self.to_dict(), indent=self.json_indent)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Self:
+        """Read a file written by :meth:`save` (through ``from_dict``).
+
+        Parameters
+        ----------
+        path : str or Path
+            JSON file.
+
+        Returns
+        -------
+        object
+            An instance of the class.
+
+        Raises
+        ------
+        FileNotFoundError
+            The file does not exist.
+        ConfigError
+            The file is not JSON, or ``from_dict`` refuses its content.
+        """
+        return cls.from_dict(read_json_file(path, cls.json_what))
+
+
 from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
 from .netcdf import load_netcdf, save_netcdf  # noqa: E402
 
@@ -178,3 +251,43 @@ def read_recording(path: str | Path, **kw: Any):
         return read_xml(path)
     raise ConfigError(f"{path}: unknown file type {suffix or '(no suffix)'!r} "
                       "(known: .csv, .nc, .xml)")
+
+
+def write_recording(recording, path: str | Path, **kw: Any) -> Path:
+    """Write a Recording, choosing the format by the file suffix (the inverse of :func:`read_recording`).
+
+    Parameters
+    ----------
+    recording : Recording
+        The data.
+    path : str or Path
+        ``.nc`` (netCDF4, lossless: :func:`save_netcdf`), ``.csv``
+        (:func:`write_csv`) or ``.xml`` (the XML experiment format); written
+        atomically.
+    **kw
+        Passed to :func:`write_csv` (``units``, ``channels``); the other
+        formats take none.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    ConfigError
+        Unknown suffix, or keywords given for a netCDF or XML file.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return write_csv(recording, path, **kw)
+    if suffix not in (".nc", ".xml"):
+        raise ConfigError(f"output '{path}': use a .nc (netCDF, lossless), .csv or .xml suffix")
+    if kw:
+        raise ConfigError(f"{path}: {suffix} files take no writer options, got {sorted(kw)}")
+    if suffix == ".nc":
+        return save_netcdf(recording, path)
+    from .xml_format import write_xml
+
+    return write_xml(recording, path)

@@ -95,11 +95,10 @@ def write_axes_file(path, model: ThreeAxisModel, *, header: str | None = None) -
     -------
     Path
     """
-    from drivesense.io import atomic_output
+    from drivesense.io import write_text_file
 
     if not isinstance(model, ThreeAxisModel):
         raise ConfigError(f"write_axes_file needs a ThreeAxisModel, got {type(model).__name__}")
-    path = Path(path)
     lines = ["# drivesense linear-motor axes (SI units)"]
     if header:
         lines += [f"# {line}" for line in header.splitlines()]
@@ -108,7 +107,4 @@ def write_axes_file(path, model: ThreeAxisModel, *, header: str | None = None) -
         for key, value in model.axis(a).to_dict().items():
             text = "[" + ", ".join(repr(float(v)) for v in value) + "]" if key == "cogging" else repr(float(value))
             lines.append(f"{key} = {text}  # {_COMMENTS[key]}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_text_file(path, "\n".join(lines) + "\n")

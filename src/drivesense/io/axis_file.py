@@ -23,12 +23,10 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from drivesense.errors import ConfigError
-from drivesense.estimate.signal import SignalParams
+from drivesense.machine.signal_chain import SignalParams
 from drivesense.machine.ballscrew import BallScrewAxis
 
 __all__ = ["read_axis_file", "write_axis_file"]
@@ -94,7 +92,8 @@ def write_axis_file(path, axis: BallScrewAxis, signal: SignalParams | None = Non
     -------
     Path
     """
-    path = Path(path)
+    from drivesense.io import write_text_file
+
     signal = signal or SignalParams()
     lines = ["# drivesense axis file (SI units)", "[axis]"]
     for k, v in axis.to_dict().items():
@@ -102,14 +101,4 @@ def write_axis_file(path, axis: BallScrewAxis, signal: SignalParams | None = Non
     lines += ["", "[signal]"]
     for k, v in signal.to_dict().items():
         lines.append(f"{k} = {v!r}" + (f"  # {_UNITS[k]}" if _UNITS[k] else ""))
-    text = "\n".join(lines) + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text_file(path, "\n".join(lines) + "\n")

@@ -139,8 +139,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         Sampling rate [Hz]; required without a ``time`` column, checked against
         it (within `rel_tol`) otherwise.
     rel_tol : float, optional
-        Allowed step jitter of the time column, see
-        :func:`drivesense.recording.validate_timebase`.
+        Allowed step jitter of the time column as a fraction of the median
+        step [-], see :func:`drivesense.recording.validate_timebase`.
     meta : mapping, optional
         Metadata for the Recording, over the file's ``# meta:`` line; ``name``
         defaults to the file stem.

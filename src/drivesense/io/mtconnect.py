@@ -68,7 +68,7 @@ def _local(tag: Any) -> str:
     return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
-def _snake(text: str) -> str:
+def snake_case(text: str) -> str:
     return re.sub(r"[^0-9a-z]+", "_", re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", text).lower()).strip("_")
 
 
@@ -130,7 +130,7 @@ def _channel(component: str, cname: str, typ: str, sub: str, name: str) -> str:
         return f"{axis}_{_AXIS_TYPES[typ, '']}_{sub.lower()}"
     if component in ("Rotary", "Spindle") and typ in _SPINDLE_TYPES and sub in ("", "ACTUAL"):
         return _SPINDLE_TYPES[typ]
-    comp, kind = _snake(cname or component), typ.lower()
+    comp, kind = snake_case(cname or component), typ.lower()
     base = kind if kind.startswith(comp + "_") else f"{comp}_{kind}"
     return base + (f"_{sub.lower()}" if sub else "")
 
@@ -212,7 +212,7 @@ def parse_devices(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
                         di.get("units") or "", di.get("nativeUnits") or "", (di.get("representation") or "VALUE")
                         .upper(), float(rate) if rate else None, comp, cname, device,
                         _channel(comp, cname, typ, sub, di.get("name") or "") if (di.get("category") or "")
-                        .upper() == "SAMPLE" else f"{_snake(cname or comp)}_{typ.lower()}"))
+                        .upper() == "SAMPLE" else f"{snake_case(cname or comp)}_{typ.lower()}"))
             elif tag == "Components":
                 for c in child:
                     walk(c, device)
@@ -228,7 +228,7 @@ def parse_devices(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
     seen: dict[str, int] = {}
     for k, item in enumerate(items):  # two items mapping to one channel: keep both, suffix the id
         if item.channel in seen and item.category == "SAMPLE":
-            items[k] = DataItem(**{**item.__dict__, "channel": f"{item.channel}_{_snake(item.id)}"})
+            items[k] = DataItem(**{**item.__dict__, "channel": f"{item.channel}_{snake_case(item.id)}"})
         seen[items[k].channel] = k
     return DeviceModel(items, devices, header)
 
@@ -245,7 +245,8 @@ class Observation:
         Timestamp, microseconds since 1970-01-01 UTC.
     value : float, tuple of float, numpy.ndarray, str or None
         Number, vector (``PATH_POSITION``), time series, event text, condition
-        level; None for ``UNAVAILABLE``.
+        level; None for ``UNAVAILABLE``.  Numbers are as the agent reports
+        them [the data item's units], not yet converted to SI.
     kind : str
         ``SAMPLE``, ``TIME_SERIES``, ``EVENT``, ``MESSAGE``, ``CONDITION`` or ``ALARM``.
     sequence : int or None

@@ -22,7 +22,7 @@ import numpy as np
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, SignalTooShortError
 from ..recording import Recording
-from .mtconnect import DeviceModel, Observation, _snake, parse_devices, parse_shdr, parse_streams
+from .mtconnect import DeviceModel, Observation, snake_case, parse_devices, parse_shdr, parse_streams
 
 __all__ = ["to_recording", "read_mtconnect", "MAX_EVENTS", "MAX_SAMPLES"]
 
@@ -68,7 +68,7 @@ def _collect(observations: Sequence[Observation], devices: DeviceModel | None, n
         if not numeric or scale is None:
             events.setdefault(label, []).append(obs)
             continue
-        base = item.channel if item else _snake(obs.key) or obs.key
+        base = item.channel if item else snake_case(obs.key) or obs.key
         factor, unit = scale
         if obs.kind == "TIME_SERIES":
             rate = obs.extra.get("sample_rate") or (item.sample_rate if item else None)
@@ -82,7 +82,7 @@ def _collect(observations: Sequence[Observation], devices: DeviceModel | None, n
         for name, t, v in parts:
             q = _units.quantity_of_channel(name)
             if q is not None and _units.SI_UNITS[q] != unit:
-                name = f"{name}_{_snake(obs.key)}"  # e.g. a linear 'position' in degrees: not the canonical one
+                name = f"{name}_{snake_case(obs.key)}"  # e.g. a linear 'position' in degrees: not the canonical one
             series.setdefault(name, []).append((t, v * factor))
             info.setdefault(name, {"key": obs.key, "units": unit, **({
                 "id": item.id, "type": item.type, "sub_type": item.sub_type,

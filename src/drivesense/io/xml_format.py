@@ -63,13 +63,13 @@ SCHEMA_PATH = _SCHEMA_DIR / "drivesense-experiment-1.0.xsd"
 #: The shipped XSLT sheet: CSV summary of measurements and channels.
 SUMMARY_XSLT_PATH = _SCHEMA_DIR / "summary.xsl"
 
-_E = "{%s}" % NAMESPACE
-_J = "{%s}" % JSON_NAMESPACE
+XML_NS = "{%s}" % NAMESPACE
+JSON_NS = "{%s}" % JSON_NAMESPACE
 _STATES = (("start_state", "startState"), ("end_state", "endState"))
 _GROUP = {"base64": 1 << 18, "text": 1 << 16}  # samples per dataGroup written
 _BAD_CHARS = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
 _NCNAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
-_INT = re.compile(r"^-?[0-9]+$")
+INTEGER_RE = re.compile(r"^-?[0-9]+$")
 
 
 def utc_now() -> str:
@@ -254,7 +254,7 @@ def _json_xml(value: Any, key: str | None = None) -> str:
     raise ConfigError(f"metadata value {value!r:.60} is not JSON")
 
 
-def _local(tag: Any) -> str:
+def local_name(tag: Any) -> str:
     return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
@@ -332,7 +332,7 @@ def _b64_kernel(src, lut, out):  # pragma: no cover - compiled
     return o, src.size, 4
 
 
-def _b64_decode(text: str, out: np.ndarray, where: str) -> None:
+def b64_decode_into(text: str, out: np.ndarray, where: str) -> None:
     try:
         src = np.frombuffer(text.encode("ascii"), np.uint8)
     except UnicodeEncodeError as exc:

@@ -23,8 +23,8 @@ import xarray as xr
 from .. import units as _units
 from ..errors import ConfigError, DriveSenseError, InvalidSignalError, UnitError
 from ..recording import META_ATTR, Recording
-from .xml_format import (_E, _INT, _J, FORMAT_VERSION, NAMESPACE, SCHEMA_PATH, SUMMARY_XSLT_PATH, Experiment,
-                         _b64_decode, _local, default_sensor)
+from .xml_format import (XML_NS, INTEGER_RE, JSON_NS, FORMAT_VERSION, NAMESPACE, SCHEMA_PATH, SUMMARY_XSLT_PATH, Experiment,
+                         b64_decode_into, local_name, default_sensor)
 from .xml_safe import DEFAULT_LIMITS, XMLLimits, parse_file, safe_iterparse
 
 __all__ = ["read_experiment", "read_xml", "validate_xml", "transform_xml"]
@@ -38,12 +38,12 @@ def _scalar(text: str) -> Any:
         v = float(text)
     except ValueError:
         return text
-    return int(text) if _INT.match(text) else (v if math.isfinite(v) else text)
+    return int(text) if INTEGER_RE.match(text) else (v if math.isfinite(v) else text)
 
 
 def _xml_json(el: Any, where: str) -> Any:
     """Inverse of :func:`_json_xml` for one ``j:*`` element."""
-    kind, text = _local(el.tag), el.text or ""
+    kind, text = local_name(el.tag), el.text or ""
     if el.get("escaped") == "true":
         try:
             text = json.loads(f'"{text}"')
@@ -63,7 +63,7 @@ def _xml_json(el: Any, where: str) -> Any:
             raise InvalidSignalError(f"{where}, line {el.sourceline}: j:number {text!r:.30} is not a "
                                      "finite number")
         return v
-    children = [c for c in el if isinstance(c.tag, str) and c.tag.startswith(_J)]
+    children = [c for c in el if isinstance(c.tag, str) and c.tag.startswith(JSON_NS)]
     if kind == "array":
         return [_xml_json(c, where) for c in children]
     if kind == "map":
@@ -71,7 +71,7 @@ def _xml_json(el: Any, where: str) -> Any:
         for c in children:
             key = c.get("key")
             if key is None:
-                raise InvalidSignalError(f"{where}, line {c.sourceline}: j:{_local(c.tag)} in a j:map "
+                raise InvalidSignalError(f"{where}, line {c.sourceline}: j:{local_name(c.tag)} in a j:map "
                                          "has no key attribute")
             if c.get("escaped-key") == "true":
                 key = json.loads(f'"{key}"')
@@ -82,11 +82,11 @@ def _xml_json(el: Any, where: str) -> Any:
 
 def _generic(el: Any) -> Any:
     """Foreign XML as nested dicts: ``@attr``, child elements by local name, ``#text``."""
-    out: dict[str, Any] = {f"@{_local(k) or k}": v for k, v in el.attrib.items()}
+    out: dict[str, Any] = {f"@{local_name(k) or k}": v for k, v in el.attrib.items()}
     for child in el:
         if not isinstance(child.tag, str):
             continue
-        key, value = _local(child.tag), _generic(child)
+        key, value = local_name(child.tag), _generic(child)
         if key in out:
             out[key] = (out[key] if isinstance(out[key], list) else [out[key]]) + [value]
         else:
@@ -102,7 +102,7 @@ def _generic(el: Any) -> Any:
 def _free_content(el: Any, where: str) -> tuple[bool, Any]:
     """(present, value) of a configuration/state element."""
     for child in el:
-        if isinstance(child.tag, str) and child.tag == _J + "map":
+        if isinstance(child.tag, str) and child.tag == JSON_NS + "map":
             return True, _xml_json(child, where)
     value = _generic(el)
     if value is None or value == {}:
@@ -119,7 +119,7 @@ def _schema() -> Any:
 
 def _int_attr(el: Any, name: str, where: str) -> int:
     text = el.get(name)
-    tag = _local(el.tag)
+    tag = local_name(el.tag)
     if text is None:
         raise InvalidSignalError(f"{where}, line {el.sourceline}, <{tag}>: attribute {name!r} is missing")
     try:
@@ -159,7 +159,7 @@ class _Channel:
                                      f"the channel declares samples={self.data.size}")
         enc, dtype, order = el.get("encoding", "base64"), el.get("dtype", "float64"), el.get("byteOrder", "little")
         if len(el):
-            raise InvalidSignalError(f"{at}: a dataGroup holds only data, found <{_local(el[0].tag)}>")
+            raise InvalidSignalError(f"{at}: a dataGroup holds only data, found <{local_name(el[0].tag)}>")
         text = el.text or ""
         out = self.data[self.pos:self.pos + count]
         if enc == "text":
@@ -177,10 +177,10 @@ class _Channel:
                                          "little/big")
             np_dtype = np.dtype(_DTYPES[dtype, order])
             if np_dtype == np.dtype(np.float64) and np_dtype.isnative:
-                _b64_decode(text, out.view(np.uint8), at)
+                b64_decode_into(text, out.view(np.uint8), at)
             else:
                 raw = np.empty(count * np_dtype.itemsize, np.uint8)
-                _b64_decode(text, raw, at)
+                b64_decode_into(text, raw, at)
                 out[:] = raw.view(np_dtype)
                 self.float32 |= dtype == "float32"
         else:
@@ -202,7 +202,7 @@ def _is_float(text: str) -> bool:
 
 
 def _check_root(el: Any, where: str) -> None:
-    if el.tag == _E + "experimentResults":
+    if el.tag == XML_NS + "experimentResults":
         version = el.get("formatVersion", "")
         if version and not re.fullmatch(r"1\.[0-9]+", version):
             raise InvalidSignalError(f"{where}, line {el.sourceline}: formatVersion={version!r}; this reader "
@@ -221,17 +221,17 @@ def _schema_error(tree: Any, where: str) -> None:
     if schema.validate(tree):
         return
     err = schema.error_log[0]
-    msg = err.message.replace("{%s}" % NAMESPACE, "").replace("{%s}" % _J[1:-1], "j:")
+    msg = err.message.replace("{%s}" % NAMESPACE, "").replace("{%s}" % JSON_NS[1:-1], "j:")
     raise InvalidSignalError(f"{where}, line {err.line}: does not follow the schema: {msg}")
 
 
 def _texts(root: Any) -> tuple[str, ...]:
     out: list[str] = []
     for el in root.iter():
-        if not isinstance(el.tag, str) or el.tag == _E + "dataGroup":
+        if not isinstance(el.tag, str) or el.tag == XML_NS + "dataGroup":
             continue
-        if not el.tag.startswith((_E, _J)):
-            out.append(_local(el.tag))
+        if not el.tag.startswith((XML_NS, JSON_NS)):
+            out.append(local_name(el.tag))
         out.extend(v for v in el.attrib.values() if v.strip())
         out.extend(t.strip() for t in (el.text, el.tail) if t and t.strip())
     return tuple(out)
@@ -239,12 +239,12 @@ def _texts(root: Any) -> tuple[str, ...]:
 
 def _recording(m: Any, base: dict, chans: dict, where: str, notes: list[str]) -> Recording:
     meta = dict(base)
-    present, own = _free_content(m.find(_E + "configuration"), where) if m.find(
-        _E + "configuration") is not None else (False, None)
+    present, own = _free_content(m.find(XML_NS + "configuration"), where) if m.find(
+        XML_NS + "configuration") is not None else (False, None)
     if present:
         meta.update(own)
     for key, tag in (("start_state", "startState"), ("end_state", "endState")):
-        el = m.find(_E + tag)
+        el = m.find(XML_NS + tag)
         if el is not None:
             present, value = _free_content(el, where)
             if present:
@@ -255,9 +255,9 @@ def _recording(m: Any, base: dict, chans: dict, where: str, notes: list[str]) ->
     arrays: dict[str, tuple[np.ndarray, str]] = {}
     grouping: dict[str, list[str]] = {}
     ref = None
-    for iface in m.iterfind(_E + "interface"):
-        for sensor in iface.iterfind(_E + "sensor"):
-            for el in sensor.iterfind(_E + "channel"):
+    for iface in m.iterfind(XML_NS + "interface"):
+        for sensor in iface.iterfind(XML_NS + "sensor"):
+            for el in sensor.iterfind(XML_NS + "channel"):
                 ch = chans[el]
                 name = ch.name
                 if name in arrays:
@@ -349,9 +349,9 @@ def read_experiment(path: str | Path, *, validate: bool = True, limits: XMLLimit
             root = el
         tag = el.tag
         if event == "start":
-            if tag == _E + "channel" and el.getparent() is not None and el.getparent().tag == _E + "sensor":
+            if tag == XML_NS + "channel" and el.getparent() is not None and el.getparent().tag == XML_NS + "sensor":
                 cur = chans[el] = _Channel(el, where, size, limits)
-        elif tag == _E + "dataGroup":
+        elif tag == XML_NS + "dataGroup":
             if cur is not None and el.getparent() is cur.el:
                 cur.add(el)
                 el.text = None
@@ -362,22 +362,22 @@ def read_experiment(path: str | Path, *, validate: bool = True, limits: XMLLimit
         raise InvalidSignalError(f"{where}: no root element")
     if validate:
         _schema_error(root.getroottree(), where)
-    personnel = root.find(_E + "personnel")
+    personnel = root.find(XML_NS + "personnel")
     people = [] if personnel is None else [
-        {_local(k) or k: v for k, v in e.attrib.items()} for e in personnel.iterfind(_E + "experimenter")]
+        {local_name(k) or k: v for k, v in e.attrib.items()} for e in personnel.iterfind(XML_NS + "experimenter")]
     in_rec = personnel is not None and personnel.get("inRecording", "true").strip() not in ("false", "0")
-    config = root.find(_E + "configuration")
+    config = root.find(XML_NS + "configuration")
     base: dict = {}
     notes: list[str] = []
     if config is not None:
         present, value = _free_content(config, where)
         if present:
             base.update(value)
-            if not any(c.tag == _J + "map" for c in config if isinstance(c.tag, str)):
+            if not any(c.tag == JSON_NS + "map" for c in config if isinstance(c.tag, str)):
                 notes.append("configuration converted from foreign XML")
     if in_rec and people:
         base["personnel"] = people
-    measurements = root.findall(_E + "measurement")
+    measurements = root.findall(XML_NS + "measurement")
     if not measurements:
         raise InvalidSignalError(f"{where}: no <measurement>; an experiment needs at least one")
     recs = tuple(_recording(m, base, chans, where, list(notes)) for m in measurements)

@@ -36,7 +36,7 @@ class Scaler:
     Attributes
     ----------
     low, high : ndarray
-        Training minimum and maximum of each column (SI).
+        Training minimum and maximum of each column [SI unit of the column].
     positive : ndarray of bool
         Columns scaled to ``[0, 1]``.
     """
@@ -47,7 +47,18 @@ class Scaler:
 
     @classmethod
     def fit(cls, matrices) -> "Scaler":
-        """Ranges from a list of ``(n_samples, n_inputs)`` training matrices."""
+        """Ranges from a list of ``(n_samples, n_inputs)`` training matrices.
+
+        Parameters
+        ----------
+        matrices : iterable of ndarray
+            Training input matrices [SI unit of each column], e.g. from
+            :func:`input_matrix`.
+
+        Returns
+        -------
+        Scaler
+        """
         stacked = np.vstack(list(matrices))
         low, high = stacked.min(axis=0), stacked.max(axis=0)
         positive = low > 0
@@ -57,7 +68,18 @@ class Scaler:
         return cls(low, high, positive)
 
     def transform(self, x: np.ndarray) -> np.ndarray:
-        """Scaled copy of ``x`` (float32)."""
+        """Scaled copy of ``x`` (float32).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n_samples, n_inputs)
+            Inputs [SI unit of each column].
+
+        Returns
+        -------
+        ndarray
+            Scaled inputs [-].
+        """
         u = (np.asarray(x, float) - self.low) / (self.high - self.low)
         return np.where(self.positive, u, 2.0 * u - 1.0).astype(np.float32)
 
@@ -67,7 +89,17 @@ class Scaler:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scaler":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            ``{"low", "high", "positive"}`` lists.
+
+        Returns
+        -------
+        Scaler
+        """
         try:
             return cls(np.asarray(d["low"], float), np.asarray(d["high"], float), np.asarray(d["positive"], bool))
         except KeyError as exc:
@@ -87,16 +119,48 @@ class TargetScaler:
     f_max: float
 
     def transform(self, f: np.ndarray) -> np.ndarray:
-        """Scaled force (float32)."""
+        """Scaled force (float32).
+
+        Parameters
+        ----------
+        f : ndarray
+            Force [N].
+
+        Returns
+        -------
+        ndarray
+            ``F*`` [-].
+        """
         return (np.asarray(f, float) / (2.0 * self.f_max) + 0.5).astype(np.float32)
 
     def inverse(self, f_star: np.ndarray) -> np.ndarray:
-        """Force [N] from the scaled value."""
+        """Force [N] from the scaled value.
+
+        Parameters
+        ----------
+        f_star : ndarray
+            Scaled force ``F*`` [-].
+
+        Returns
+        -------
+        ndarray
+            Force [N].
+        """
         return (np.asarray(f_star, float) - 0.5) * 2.0 * self.f_max
 
 
 def input_matrix(recording: Recording) -> np.ndarray:
-    """The ``(n_samples, 14)`` input matrix of a trace, in SI (before scaling)."""
+    """The ``(n_samples, 14)`` input matrix of a trace, in SI (before scaling).
+
+    Parameters
+    ----------
+    recording : Recording
+        A trace holding :data:`INPUT_CHANNELS`.
+
+    Returns
+    -------
+    ndarray, shape (n_samples, 14)
+    """
     recording.require(*INPUT_CHANNELS)
     return np.column_stack([recording[c] for c in INPUT_CHANNELS])
 
@@ -167,6 +231,24 @@ def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 12
     (``meta["nc_delay_s"]``, e.g. a logger's anti-alias filter), so that it lines
     up with the NC inputs: a causal network cannot undo that delay, and the
     learned estimators declare it as their latency.
+
+    Parameters
+    ----------
+    recording : Recording
+        Trace holding the reference force.
+    channel : str
+        Force channel (``force_x``...).
+    cutoff_hz : float, optional
+        Cut-off [Hz] (default 120), below the trace's Nyquist frequency.
+    order : int, optional
+        Butterworth order (applied forwards and backwards).
+    aligned : bool, optional
+        Delay by ``meta["nc_delay_s"]`` (default True).
+
+    Returns
+    -------
+    ndarray
+        Filtered force [N].
     """
     recording.require(channel)
     f = recording[channel]
@@ -185,7 +267,20 @@ def filtered_target(recording: Recording, channel: str, *, cutoff_hz: float = 12
 
 
 def resample_to(recording: Recording, fs: float) -> Recording:
-    """The trace on a uniform grid at ``fs`` [Hz] (polyphase, anti-aliased); provenance says so."""
+    """The trace on a uniform grid at ``fs`` [Hz] (polyphase, anti-aliased); provenance says so.
+
+    Parameters
+    ----------
+    recording : Recording
+        The trace.
+    fs : float
+        Target sample rate [Hz].
+
+    Returns
+    -------
+    Recording
+        The same object when it is already at `fs`.
+    """
     if abs(recording.fs - fs) < 1e-9 * fs:
         return recording
     from fractions import Fraction

@@ -30,26 +30,29 @@ __all__ = ["LSTMWeights", "LSTMState", "run_lstm", "skip_to_torch"]
 class LSTMWeights:
     """Weights of a stacked LSTM and its linear head, packed for the kernel.
 
+    The network maps scaled inputs to a scaled output, so every weight is
+    dimensionless.
+
     Attributes
     ----------
     w_ih : ndarray, shape (layers, 4H, max_in)
-        Input weights (zero-padded past each layer's input width).
+        Input weights [-] (zero-padded past each layer's input width).
     w_hh : ndarray, shape (layers, 4H, H)
-        Recurrent weights.
+        Recurrent weights [-].
     bias : ndarray, shape (layers, 4H)
-        ``b_ih + b_hh``.
+        ``b_ih + b_hh`` [-].
     in_dims : ndarray of int, shape (layers,)
         Input width of each layer.
     head_w : ndarray, shape (H,)
-        Output weights.
+        Output weights [-].
     head_b : float
-        Output bias.
+        Output bias [-].
     skip_w : ndarray, shape (inputs,) or (inputs, taps), optional
-        Linear skip from the inputs straight to the output: a causal FIR filter,
+        Linear skip from the inputs straight to the output [-]: a causal FIR filter,
         column ``k`` weighting the inputs ``k`` samples back (``skip.weight``);
         None: no skip (the paper's network).
     dropout : float
-        Dropout probability between layers (used only when sampling).
+        Dropout probability between layers [-] (used only when sampling).
     """
 
     w_ih: np.ndarray
@@ -110,7 +113,7 @@ class LSTMWeights:
         layers : int
             Number of LSTM layers.
         dropout : float
-            Dropout probability between layers.
+            Dropout probability between layers [-].
         """
         def arr(name):
             v = state[name]
@@ -135,7 +138,18 @@ def _skip_from_torch(w: np.ndarray) -> np.ndarray:
 
 
 def skip_to_torch(skip_w: np.ndarray) -> np.ndarray:
-    """The causal ``Conv1d`` weight ``(1, inputs, taps)`` of a skip given by lag (inverse of loading)."""
+    """The causal ``Conv1d`` weight ``(1, inputs, taps)`` of a skip given by lag (inverse of loading).
+
+    Parameters
+    ----------
+    skip_w : ndarray, shape (inputs,) or (inputs, taps)
+        Skip weights by lag [-] (column ``k``: ``k`` samples back), as
+        :attr:`LSTMWeights.skip_w`.
+
+    Returns
+    -------
+    ndarray, shape (1, inputs, taps)
+    """
     return np.ascontiguousarray(np.asarray(skip_w, dtype=np.float64).reshape(len(skip_w), -1)[None, :, ::-1])
 
 
@@ -165,7 +179,7 @@ def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int
     state : LSTMState
         Carried state (updated in place).
     x : ndarray, shape (n, inputs)
-        Scaled inputs.
+        Scaled inputs [-].
     seed : int, optional
         With a seed, dropout is applied between layers (Monte-Carlo dropout);
         without, the network runs deterministically (evaluation mode).

@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.estimate.model_based import ModelBased
 from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, filtered_target,
                                       input_matrix, position_features, presliding_features, resample_to)
 from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm, skip_to_torch
@@ -59,7 +60,7 @@ class TrainConfig:
     layers : int
         Stacked layers.
     dropout : float
-        Dropout between layers (training and Monte-Carlo sampling).
+        Dropout probability between layers [-] (training and Monte-Carlo sampling).
     fs : float
         Sample rate the model works at [Hz] (traces are resampled explicitly).
     window : int
@@ -75,13 +76,13 @@ class TrainConfig:
     patience : int
         Epochs without validation improvement before stopping.
     lr : float
-        Adam learning rate.
+        Adam learning rate [-] (the loss is on scaled forces).
     seed : int
         Seed of everything random.
     mc_samples : int
         Monte-Carlo dropout samples for intervals.
     coverage : float
-        Nominal coverage of the intervals.
+        Nominal coverage of the intervals [-] (e.g. 0.95).
     position_harmonics : int
         Beyond the paper: sine and cosine of this many harmonics of the pole
         pitch of each axis position are added to the inputs (cogging is
@@ -100,7 +101,7 @@ class TrainConfig:
         (each the better on the validation runs of the built dataset).
     skip_lr_factor : float
         Learning rate of the skip (already at its least-squares optimum) relative
-        to ``lr``: small values keep the LSTM from trading the linear fit away early.
+        to ``lr`` [-]: small values keep the LSTM from trading the linear fit away early.
     presliding_length : float
         Beyond the paper: the Dahl presliding state of each axis, computed
         from its position over this distance [m] (a nominal guide value, not an
@@ -108,12 +109,12 @@ class TrainConfig:
         micrometres at a reversal, faster than 250 Hz velocity can show;
         0 leaves it out.
     lr_decay : float
-        Factor on the learning rate after ``lr_patience`` epochs without a
+        Factor [-] on the learning rate after ``lr_patience`` epochs without a
         validation improvement (1 keeps it constant).
     lr_patience : int
         Epochs without improvement before the learning rate is decayed.
     grad_clip : float
-        Largest gradient norm per step (0: no clipping).
+        Largest gradient norm per step [-] (0: no clipping).
     """
 
     hidden: int = 20
@@ -160,6 +161,8 @@ class TrainConfig:
 
 
 _POOL = None
+#: Shortest input for which the three networks run on the thread pool (shorter: one after the other).
+_PARALLEL_MIN_SAMPLES = 2048
 #: FIR taps of the linear skip when the config leaves them open (the better on the built dataset's validation runs)
 _DEFAULT_TAPS = {"lstm": 4, "hybrid": 8}
 
@@ -193,7 +196,7 @@ class LearnedModel:
     force_scale : dict of str to float
         Largest absolute training force per channel [N] (scales a hybrid's model input).
     interval_scale : dict of str to float
-        Calibrated multiplier of the Monte-Carlo spread per channel.
+        Calibrated multiplier of the Monte-Carlo spread per channel [-].
     history : dict
         Training record (losses, epochs, seconds).
     model_based : object, optional
@@ -217,6 +220,18 @@ class LearnedModel:
 
         ``state`` carries the presliding states between stream chunks (updated
         in place; None: a fresh start).
+
+        Parameters
+        ----------
+        arrays : mapping of str to array_like
+            ``{channel: samples}`` [SI unit of each channel], at least
+            :data:`~drivesense.learn.features.INPUT_CHANNELS`.
+        state : dict, optional
+            ``{axis index: (last position [m], state [-])}``, updated in place.
+
+        Returns
+        -------
+        ndarray, shape (n_samples, n_inputs)
         """
         x = self.input_scaler.transform(np.column_stack([np.asarray(arrays[c], float) for c in INPUT_CHANNELS]))
         pos = [arrays[f"{ax}_position"] for ax in ("x", "y", "z")]
@@ -228,43 +243,130 @@ class LearnedModel:
         return x
 
     def inputs(self, recording: Recording) -> tuple[np.ndarray, dict]:
-        """Scaled network inputs and the model part of each output [N] (zeros for a plain LSTM)."""
-        recording.require(*INPUT_CHANNELS)
-        x = self.scaled_inputs({c: recording[c] for c in INPUT_CHANNELS})
-        if self.kind == "hybrid":
-            from drivesense.estimate.model_based import ModelBased
+        """Scaled network inputs of a whole trace and the model part of each output [N] (zeros for a plain LSTM).
 
-            est = ModelBased(self.model_based).estimate(recording)
-            return x, {ch: est[ch] for ch in TARGET_CHANNELS}
+        Parameters
+        ----------
+        recording : Recording
+            A trace holding the NC input channels.
+
+        Returns
+        -------
+        x : ndarray
+            Scaled inputs [-].
+        base : dict of str to ndarray
+            Model part of each force channel [N].
+        """
+        recording.require(*INPUT_CHANNELS)
+        arrays = {c: recording[c] for c in recording.channels}
+        x = self.scaled_inputs(arrays)
+        if self.kind == "hybrid":
+            return x, ModelBased(self.model_based).process({}, arrays)
         return x, {ch: np.zeros(recording.n_samples) for ch in TARGET_CHANNELS}
 
     def network_input(self, x: np.ndarray, base: np.ndarray, channel: str) -> np.ndarray:
-        """Inputs of ``channel``'s network: the NC inputs, plus the scaled model estimate for a hybrid."""
+        """Inputs of ``channel``'s network: the NC inputs, plus the scaled model estimate for a hybrid.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n_samples, n_inputs)
+            Scaled NC inputs [-] (:meth:`scaled_inputs`).
+        base : ndarray
+            Model estimate of the force [N] (ignored for a plain LSTM).
+        channel : str
+            Force channel (``force_x``...).
+
+        Returns
+        -------
+        ndarray
+        """
         if self.kind != "hybrid":
             return x
         return np.column_stack([x, base / self.force_scale[channel]]).astype(np.float32)
 
-    def predict(self, recording: Recording, *, intervals: bool = False) -> dict[str, np.ndarray]:
-        """Force per channel [N]; with ``intervals``, also ``{ch}_lower`` / ``{ch}_upper``."""
-        out = {}
-        x_all, bases = self.inputs(recording)
+    def new_state(self) -> dict:
+        """A fresh carried state: each network's hidden/cell state, the presliding states of the inputs
+        and (hybrid) of the model part; constant size."""
+        return {"networks": {ch: LSTMState(w) for ch, w in self.weights.items()}, "inputs": {}, "model": {}}
+
+    def forward(self, state: dict, arrays, *, network_inputs: dict | None = None) -> dict[str, np.ndarray]:
+        """Force per channel [N] for the next samples of ``{channel: samples}`` (SI), carrying ``state``.
+
+        Batch prediction is one call from :meth:`new_state`; streaming is one
+        call per chunk: the same numbers.  ``network_inputs``, if given, is
+        filled with each network's input matrix (for the intervals).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`new_state`; updated in place.
+        arrays : mapping of str to array_like
+            ``{channel: samples}`` [SI unit of each channel].
+        network_inputs : dict, optional
+            Filled with ``{force channel: input matrix}``.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Force per channel [N].
+        """
+        n = len(arrays[INPUT_CHANNELS[0]])
+        x_all = self.scaled_inputs(arrays, state["inputs"])
+        if self.kind == "hybrid":
+            bases = ModelBased(self.model_based).process(state["model"], arrays)
+        else:
+            bases = {ch: np.zeros(n) for ch in TARGET_CHANNELS}
         inputs = {ch: self.network_input(x_all, bases[ch], ch) for ch in TARGET_CHANNELS}
-        # the compiled kernel releases the GIL: the three networks run side by side on a kept pool
-        raw = dict(zip(TARGET_CHANNELS, _pool().map(
-            lambda ch: run_lstm(self.weights[ch], LSTMState(self.weights[ch]), inputs[ch]), TARGET_CHANNELS)))
-        for ch in TARGET_CHANNELS:
-            base, x, w = bases[ch], inputs[ch], self.weights[ch]
-            ts = self.target_scalers[ch]
-            out[ch] = base + ts.inverse(raw[ch])
-            if intervals:
-                spread = _mc_spread(w, x, self.config.mc_samples, self.config.seed) * 2.0 * ts.f_max
-                half = self.interval_scale[ch] * (spread + 1e-3 * ts.f_max)
+        if network_inputs is not None:
+            network_inputs.update(inputs)
+        nets = state["networks"]
+        if n >= _PARALLEL_MIN_SAMPLES:
+            # the compiled kernel releases the GIL: the three networks run side by side on a kept pool
+            raw = dict(zip(TARGET_CHANNELS, _pool().map(
+                lambda ch: run_lstm(self.weights[ch], nets[ch], inputs[ch]), TARGET_CHANNELS)))
+        else:
+            raw = {ch: run_lstm(self.weights[ch], nets[ch], inputs[ch]) for ch in TARGET_CHANNELS}
+        return {ch: bases[ch] + self.target_scalers[ch].inverse(raw[ch]) for ch in TARGET_CHANNELS}
+
+    def predict(self, recording: Recording, *, intervals: bool = False) -> dict[str, np.ndarray]:
+        """Force per channel [N] over a whole trace; with ``intervals``, also ``{ch}_lower`` / ``{ch}_upper``.
+
+        Parameters
+        ----------
+        recording : Recording
+            A trace holding the NC input channels.
+        intervals : bool, optional
+            Add Monte-Carlo dropout intervals.
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+        recording.require(*INPUT_CHANNELS)
+        inputs: dict = {}
+        out = self.forward(self.new_state(), {c: recording[c] for c in recording.channels},
+                           network_inputs=inputs if intervals else None)
+        if intervals:
+            for ch in TARGET_CHANNELS:
+                ts = self.target_scalers[ch]
+                spread = _mc_spread(self.weights[ch], inputs[ch], self.config.mc_samples, self.config.seed)
+                half = self.interval_scale[ch] * (spread * 2.0 * ts.f_max + 1e-3 * ts.f_max)
                 out[f"{ch}_lower"], out[f"{ch}_upper"] = out[ch] - half, out[ch] + half
         return out
 
     # ---------------------------------------------------------- persistence
     def save(self, folder) -> Path:
-        """Write the model folder (config.json + weights_*.pt)."""
+        """Write the model folder (config.json + weights_*.pt).
+
+        Parameters
+        ----------
+        folder : str or Path
+            Created if needed.
+
+        Returns
+        -------
+        Path
+        """
         torch = require_torch()
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -288,7 +390,17 @@ class LearnedModel:
 
     @classmethod
     def load(cls, folder) -> "LearnedModel":
-        """Read a model folder written by :meth:`save` (``torch.load(weights_only=True)``)."""
+        """Read a model folder written by :meth:`save` (``torch.load(weights_only=True)``).
+
+        Parameters
+        ----------
+        folder : str or Path
+            A folder written by :meth:`save`.
+
+        Returns
+        -------
+        LearnedModel
+        """
         torch = require_torch()
         folder = Path(folder)
         path = folder / "config.json"

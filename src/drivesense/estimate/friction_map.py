@@ -1,4 +1,4 @@
-"""Friction maps from idling runs (first paper, Sec. 4).
+"""Friction maps from idling runs (first paper, Sec. 4), through the estimator's own kernel.
 
 Friction of a ball-screw stage is position dependent but highly repeatable.
 Running the cutting trajectory without cutting ("idling", 3 times in the
@@ -6,39 +6,34 @@ paper) and reading what the uncompensated estimator reports gives the friction
 in that estimator's modal space as a function of table position; averaging the
 runs and subtracting the map during the cut removes it.  The spread between
 runs is the map's repeatability.
+
+The map is read from the very kernel that estimates (run with no
+compensation), so a method's map and its estimate cannot drift apart: MEDOB's
+map is in observer form because MEDOB estimates in observer form.  The
+kernel's output is lined up with the table position by removing the
+discretisation's own delay and, with a backward pass of the same low-pass, its
+phase lag; the kernel applies the map through the same low-pass when it
+compensates.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy import signal as sps
 
 from drivesense.errors import CoverageError, InvalidSignalError
 from drivesense.estimate.design import lowpass_sos
-from drivesense.estimate.kernel import FrictionTable
+from drivesense.estimate.kernel import FrictionTable, KernelState, run_kernel
 from drivesense.recording import Recording
 
-__all__ = ["FrictionMap", "build_friction_map", "aligned_thrust"]
+if TYPE_CHECKING:
+    from drivesense.estimate.ballscrew import BallScrewEstimator
 
-
-def aligned_thrust(estimator, recording: Recording) -> np.ndarray:
-    """Motor thrust ``K_t I / R`` [N] through the current-loop model, delayed by ``T_comp``.
-
-    The result lines up with the encoder samples of the same index, like the
-    thrust path inside the compiled estimator.
-    """
-    axis, sig, fs = estimator.axis, estimator.signal, recording.fs
-    current = recording[f"{estimator.axis_name}_current_ref"]
-    if sig.omega_cc > 0:
-        a = np.exp(-sig.omega_cc / fs)
-        current = sps.lfilter([0.0, 1.0 - a], [1.0, -a], current, zi=sps.lfilter_zi([0.0, 1.0 - a], [1.0, -a]) * current[0])[0]
-    n = current.size
-    idx = np.arange(n) - sig.T_comp * fs
-    delayed = np.interp(idx, np.arange(n), current)
-    return axis.K_t / axis.R * delayed
+__all__ = ["FrictionMap", "build_friction_map", "uncompensated_estimate"]
 
 
 @dataclass
@@ -104,14 +99,47 @@ class FrictionMap:
                 f"({int(bad.sum())} samples outside): run the idle trajectory over the cut's positions")
 
 
-def build_friction_map(estimator, idle_runs: Sequence[Recording], *, bin_width: float = 1e-6,
-                       min_samples_per_bin: int = 3) -> FrictionMap:
+def uncompensated_estimate(estimator: "BallScrewEstimator", recording: Recording) -> np.ndarray:
+    """The estimator's kernel output with no compensation, lined up with the table position [N].
+
+    The kernel's output is shifted back by the discretisation's own delay
+    (latency minus the encoder dead time ``T_b``, which the table position
+    carries too) and filtered backwards with the estimator's low-pass, which
+    removes the forward pass's phase lag (zero phase overall).
+
+    Parameters
+    ----------
+    estimator : BallScrewEstimator
+        The method (its design and signal settings; its compensation is ignored).
+    recording : Recording
+        An idle run with the estimator's input channels.
+
+    Returns
+    -------
+    ndarray
+        Same length as the recording; the last samples repeat the last aligned value.
+    """
+    fs = recording.fs
+    design = estimator.design(fs)
+    names = estimator.channel_names
+    state = KernelState(design, FrictionTable.zero())
+    out = run_kernel(state, *(recording[c] for c in names))
+    sos = lowpass_sos(estimator.signal, fs)
+    back = sps.sosfilt(sos, out[::-1], zi=sps.sosfilt_zi(sos) * out[-1])[0][::-1]
+    shift = int(round((design.latency_s - estimator.signal.T_b) * fs))
+    if shift > 0:
+        back = np.concatenate([back[shift:], np.full(shift, back[-1])])
+    return back
+
+
+def build_friction_map(estimator: "BallScrewEstimator", idle_runs: Sequence[Recording], *,
+                       bin_width: float = 1e-6, min_samples_per_bin: int = 3) -> FrictionMap:
     """Average the uncompensated estimate of idle runs over table-position bins.
 
     Parameters
     ----------
-    estimator : LinearForceEstimator
-        The estimator whose friction is mapped (its combination and signal settings).
+    estimator : BallScrewEstimator
+        The estimator whose friction is mapped (its kernel and signal settings).
     idle_runs : sequence of Recording
         Air-cut runs over the cutting trajectory.
     bin_width : float
@@ -127,19 +155,15 @@ def build_friction_map(estimator, idle_runs: Sequence[Recording], *, bin_width: 
     runs = list(idle_runs)
     if not runs:
         raise CoverageError("no idle runs given: a friction map needs at least one")
-    comb = estimator.map_combination()
-    ax = estimator.axis
-    name = estimator.axis_name
     raws, positions, speeds = [], [], []
-    for k, rec in enumerate(runs):
-        estimator.check_length(rec)
+    for rec in runs:
+        if not isinstance(rec, Recording):
+            raise InvalidSignalError(f"idle runs must be Recordings, got {type(rec).__name__}")
         rec.require(*estimator.channel_names)
-        thrust = aligned_thrust(estimator, rec)
-        x_m = ax.R * rec[f"{name}_motor_angle"]
-        x_t = rec[f"{name}_table_position"]
-        raw = comb.raw(ax, thrust, x_m, x_t, rec.fs)
-        raw = sps.sosfiltfilt(lowpass_sos(estimator.signal, rec.fs), raw)
-        skip = int(estimator.settle_time(rec.fs) * rec.fs)
+        estimator.check_length(rec)
+        raw = uncompensated_estimate(estimator, rec)
+        x_t = rec[f"{estimator.axis_name}_table_position"]
+        skip = int(estimator.settle_time(rec.fs) * rec.fs)   # the kernel's start-up
         raws.append(raw[skip:])
         positions.append(x_t[skip:])
         speeds.append(np.median(np.abs(np.diff(x_t))) * rec.fs)
@@ -156,13 +180,10 @@ def build_friction_map(estimator, idle_runs: Sequence[Recording], *, bin_width: 
         counts = np.bincount(idx, minlength=n_bins)
         with np.errstate(invalid="ignore", divide="ignore"):
             per_run[k] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
-    with np.errstate(invalid="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mean = np.nanmean(per_run, axis=0)
-            spread = np.nanstd(per_run, axis=0, ddof=1) if len(runs) > 1 else np.full(n_bins, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # bins no run reached: NaN, filled below
+        mean = np.nanmean(per_run, axis=0)
+        spread = np.nanstd(per_run, axis=0, ddof=1) if len(runs) > 1 else np.full(n_bins, np.nan)
     good = np.isfinite(mean)
     if not good.any():
         raise InvalidSignalError("idle runs gave no usable samples for the friction map")

@@ -1,4 +1,6 @@
-"""Signal-chain settings shared by the ball-screw force estimators (first paper, Sec. 2.3)."""
+"""The drive's signal chain as the ball-screw estimators see it (first paper, Sec. 2.3): dead times,
+current-loop model and the estimators' low-pass.  Read from AXIS.toml by :mod:`drivesense.io.axis_file`.
+"""
 
 from __future__ import annotations
 
@@ -53,7 +55,13 @@ class SignalParams:
             raise ConfigError(f"signal parameter 'lpf_order' must be an integer 1-8, got {self.lpf_order!r}")
 
     def check_rate(self, fs: float) -> None:
-        """Raise :class:`ConfigError` if the low-pass cut-off is not below Nyquist at ``fs`` [Hz]."""
+        """Raise :class:`ConfigError` if the low-pass cut-off is not below Nyquist at ``fs`` [Hz].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
         if self.lpf_hz >= 0.5 * fs:
             raise ConfigError(f"signal parameter 'lpf_hz' = {self.lpf_hz} Hz is not below the Nyquist "
                               f"frequency {0.5 * fs:g} Hz of a {fs:g} Hz trace")
@@ -64,7 +72,19 @@ class SignalParams:
 
     @classmethod
     def from_dict(cls, values: dict, *, source: str = "signal parameters") -> "SignalParams":
-        """Build from a mapping; absent keys take the defaults, unknown keys are an error."""
+        """Build from a mapping; absent keys take the defaults, unknown keys are an error.
+
+        Parameters
+        ----------
+        values : dict
+            Parameter name -> value [SI unit of the parameter].
+        source : str, optional
+            Where the values come from (a file name), to start error messages.
+
+        Returns
+        -------
+        SignalParams
+        """
         names = [f.name for f in fields(cls)]
         unknown = [k for k in values if k not in names]
         if unknown:
