@@ -56,8 +56,8 @@ def test_table1_derived_values(ax):
     assert ax.C_r == pytest.approx(6.50e-3 / R**2, rel=1e-12)
     assert round(ax.alpha, 3) == 0.080  # Table 1: inertia ratio 0.080
     assert ax.alpha == pytest.approx(6.55 / (5.18e-5 / R**2), rel=1e-12)
-    assert ax.force_per_amp == pytest.approx(ax.K_t / R, rel=1e-15)
-    assert ax.alpha_c == pytest.approx(ax.C_r / ax.M_r)
+    assert ax.force_per_amp == pytest.approx(0.45 * 2 * math.pi / 5e-3, rel=1e-12)  # K_t = 0.45 N*m/A, 5 mm lead
+    assert ax.alpha_c == pytest.approx(6.50e-3 / 5.18e-5, rel=1e-12)  # D_r / J_r [1/s], R cancels
     assert ax.beta_c == pytest.approx(1.76e3 / 40.5e6)
     # Table 1 is proportionally damped to about 0.1 %
     assert ax.proportional_damping_mismatch < 2e-3
@@ -73,10 +73,18 @@ def test_natural_frequency_is_sqrt_kvib_over_mvib(ax):
 
 
 def test_physical_matrices_eq2(ax):
+    """Properties of Eq. 2 rather than its entries: what a rigid translation and a stretch of the screw cost."""
     m = ax.matrices()
-    np.testing.assert_array_equal(m.M, np.diag([ax.M_r, ax.M_t]))
-    np.testing.assert_allclose(m.C, [[ax.C_r + ax.C_k, -ax.C_k], [-ax.C_k, ax.C_t + ax.C_k]])
-    np.testing.assert_allclose(m.K, ax.K_r * np.array([[1, -1], [-1, 1]]))
+    for mat in (m.M, m.C, m.K):
+        np.testing.assert_array_equal(mat, mat.T)                          # reciprocity
+    rigid = np.array([1.0, 1.0])                                          # both sides move together
+    np.testing.assert_allclose(m.K @ rigid, 0.0, atol=1e-9 * ax.K_r)       # ... store no spring energy
+    np.testing.assert_allclose(m.C @ rigid, [ax.C_r, ax.C_t], rtol=1e-12)  # ... only the dampers to ground act
+    assert rigid @ m.M @ rigid == pytest.approx(ax.M_r + ax.M_t, rel=1e-12)  # ... and the whole mass moves
+    stretch = np.array([1e-6, 0.0])                                       # motor side 1 um ahead of the table
+    np.testing.assert_allclose(m.K @ stretch, [40.5, -40.5], rtol=1e-12)   # K_r = 40.5 N/um, equal and opposite
+    assert np.all(np.linalg.eigvalsh(m.M) > 0) and np.all(np.linalg.eigvalsh(m.C) > 0)
+    assert np.linalg.eigvalsh(m.K)[1] == pytest.approx(2 * ax.K_r, rel=1e-12)  # the one elastic mode
 
 
 # ------------------------------------------------------------------- modal

@@ -241,11 +241,15 @@ def test_entry_transient_builds_up_monotonically(ae, mode):
 
 # --- power ----------------------------------------------------------------------------------
 
-def test_power_is_torque_times_omega():
-    f = milling_forces(EndMill(D, 4), K, MillingCut(D / 2, 2e-3), one_rev(500), C)
-    omega = np.full(500, 800.0)
-    np.testing.assert_array_equal(f.power(omega), f.torque * 800.0)
-    np.testing.assert_array_equal(f.power(800.0), f.torque * 800.0)
+def test_power_flows_only_while_the_flute_cuts():
+    """One straight flute, quarter-immersion up-milling: engaged for phi in [0, pi/3], and only there."""
+    angle = one_rev(600)
+    f = milling_forces(EndMill(D, 1, helix_deg=0.0), K, MillingCut(D / 4, 2e-3, "up", axial_slices=1), angle, C)
+    p = f.power(800.0)
+    engaged = np.mod(angle, 2 * math.pi) <= math.pi / 3
+    assert 0 < engaged.sum() < angle.size
+    assert np.all(p[engaged] > 0) and np.all(p[~engaged] == 0.0)       # the spindle does work on the chip
+    np.testing.assert_array_equal(f.power(np.full(angle.size, 800.0)), p)   # a constant per-sample speed = a scalar
 
 
 def test_slot_mean_power_closed_form():

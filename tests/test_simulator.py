@@ -53,23 +53,22 @@ def feed_cond():
 
 
 @pytest.fixture(scope="module")
-def cross_cond():
-    return condition_by_name("cross_r1.5_S4000")[0]
+def full_idle(feed_scenario) -> Recording:
+    """``simulate_idle(feed_cond, repeats=1)[0]``: the first of the shared idling runs (conftest)."""
+    assert feed_scenario.cond.name == "feed_r6_S1000"
+    return feed_scenario.idle[0]
 
 
 @pytest.fixture(scope="module")
-def full_idle(feed_cond) -> Recording:
-    return simulate_idle(feed_cond, repeats=1)[0]
+def full_cut(feed_scenario) -> Recording:
+    """``simulate_cut(feed_cond, seed=0)``, shared with the estimator tests (conftest)."""
+    return feed_scenario.cut
 
 
 @pytest.fixture(scope="module")
-def full_cut(feed_cond) -> Recording:
-    return simulate_cut(feed_cond, seed=0)
-
-
-@pytest.fixture(scope="module")
-def full_cross(cross_cond) -> Recording:
-    return simulate_cut(cross_cond, seed=0)
+def full_cross(paper_scenario) -> Recording:
+    """``simulate_cut(cross_cond, seed=0)`` (conftest)."""
+    return paper_scenario("cross_r1.5_S4000").cut
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ def amplitude_spectrum(x, fs: float) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     x : array_like
-        Uniformly sampled signal.
+        Uniformly sampled signal [any unit].
     fs : float
         Sample rate [Hz] (or samples per metre for a position grid).
 
@@ -94,11 +94,17 @@ def dominant_wavelengths(wavelength, amplitude, n: int = 5, *, min_separation: f
     Parameters
     ----------
     wavelength, amplitude : ndarray
-        From :func:`wavelength_spectrum`.
+        From :func:`wavelength_spectrum`: wavelengths [m] and amplitudes [unit
+        of the signal].
     n : int
         Number of peaks.
     min_separation : float
-        Peaks closer than this relative wavelength difference are merged.
+        Peaks closer than this relative wavelength difference are merged [-].
+
+    Returns
+    -------
+    list of dict
+        Largest first; ``wavelength_m`` [m] and ``amplitude`` [unit of the signal].
     """
     wl = np.asarray(wavelength, float)
     amp = np.asarray(amplitude, float)

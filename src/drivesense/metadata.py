@@ -47,7 +47,17 @@ def _jsonable(obj: Any, path: str) -> Any:
 
 
 def meta_to_json(meta: Mapping | None) -> str:
-    """``meta`` (a mapping, or None for ``{}``) as a JSON string; ConfigError naming a bad entry."""
+    """``meta`` (a mapping, or None for ``{}``) as a JSON string; ConfigError naming a bad entry.
+
+    Parameters
+    ----------
+    meta : mapping or None
+        JSON-serialisable metadata (numpy scalars and arrays are converted).
+
+    Returns
+    -------
+    str
+    """
     if meta is None:
         return "{}"
     if not isinstance(meta, Mapping):

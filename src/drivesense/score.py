@@ -57,7 +57,26 @@ class Score:
 
 
 def aligned_reference(reference: np.ndarray, fs: float, sos: np.ndarray | None, latency_s: float) -> np.ndarray:
-    """Low-pass the reference like the estimate and delay it by ``latency_s`` [s]."""
+    """Low-pass the reference like the estimate and delay it by ``latency_s`` [s].
+
+    Parameters
+    ----------
+    reference : ndarray
+        Reference force [N].
+    fs : float
+        Sampling rate [Hz].
+    sos : ndarray or None
+        The estimator's low-pass as second-order sections, shape (n, 6) [-];
+        None for no filter.  The filter starts in its steady state at the
+        first value.
+    latency_s : float
+        Delay [s] (fractional samples are interpolated linearly).
+
+    Returns
+    -------
+    ndarray
+        The filtered, delayed reference [N].
+    """
     ref = np.asarray(reference, dtype=float)
     if sos is not None:
         ref = sps.sosfilt(sos, ref, zi=sps.sosfilt_zi(sos) * ref[0])[0]
@@ -66,7 +85,22 @@ def aligned_reference(reference: np.ndarray, fs: float, sos: np.ndarray | None, 
 
 
 def harmonic_amplitudes(x: np.ndarray, fs: float, freqs) -> np.ndarray:
-    """Amplitudes of sinusoids at ``freqs`` [Hz] in ``x`` by joint least squares."""
+    """Amplitudes of sinusoids at ``freqs`` [Hz] in ``x`` by joint least squares.
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal [any unit], uniformly sampled.
+    fs : float
+        Sampling rate [Hz].
+    freqs : sequence of float
+        Frequencies [Hz] fitted jointly (with a constant).
+
+    Returns
+    -------
+    ndarray
+        Amplitude at each frequency [unit of `x`].
+    """
     t = np.arange(x.size) / fs
     cols = [np.ones_like(t)]
     for f in freqs:
@@ -92,7 +126,8 @@ def score_estimate(estimate: Recording, reference: Recording, *, channel: str = 
     window : tuple of float, optional
         ``(start, end)`` [s]; default ``reference.meta["score_window"]``.
     sos : ndarray, optional
-        The estimator's low-pass (second-order sections) applied to the reference.
+        The estimator's low-pass (second-order sections, shape (n, 6)) [-]
+        applied to the reference.
     tooth_pass_hz : float, optional
         Tooth-passing frequency [Hz] for the harmonic amplitude error.
     cutoff_hz : float, optional

@@ -19,13 +19,35 @@ __all__ = ["validate_timebase", "check_timebase", "check_fs", "format_time"]
 
 
 def format_time(t: float, fs: float) -> str:
-    """Time [s] with enough decimals to resolve one sample at `fs` [Hz]."""
+    """Time [s] with enough decimals to resolve one sample at `fs` [Hz].
+
+    Parameters
+    ----------
+    t : float
+        Time [s].
+    fs : float
+        Sampling rate [Hz] that sets the resolution.
+
+    Returns
+    -------
+    str
+    """
     decimals = min(12, max(0, math.ceil(math.log10(fs)))) if fs > 1 else 3
     return f"{t:.{decimals}f}"
 
 
 def check_fs(fs: Any) -> float:
-    """Return `fs` [Hz] as a float; TimebaseError unless it is a positive finite number."""
+    """Return `fs` [Hz] as a float; TimebaseError unless it is a positive finite number.
+
+    Parameters
+    ----------
+    fs : float
+        Sampling rate [Hz].
+
+    Returns
+    -------
+    float
+    """
     real = (int, float, np.integer, np.floating)
     if isinstance(fs, (bool, np.bool_)) or not isinstance(fs, real):
         raise TimebaseError(f"fs must be a number in Hz, got {fs!r}")
@@ -37,7 +59,30 @@ def check_fs(fs: Any) -> float:
 
 def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike | None,
               row_label: str) -> tuple[float, float]:
-    """Check a time axis [s]; return (fs [Hz], worst step jitter as a fraction)."""
+    """Check a time axis [s]; return (fs [Hz], worst step jitter as a fraction).
+
+    The work of :func:`validate_timebase`, which describes the checks.
+
+    Parameters
+    ----------
+    time : array_like
+        Time stamps [s], 1-D.
+    rel_tol : float
+        Largest allowed step jitter, as a fraction of the median step [-].
+    name : str
+        What the time stamps are, to start error messages.
+    rows : array_like of int or None
+        Label of each stamp in messages; None for the 0-based sample index.
+    row_label : str
+        Word for `rows` in messages (``"sample"``, ``"line"``...).
+
+    Returns
+    -------
+    fs : float
+        Sampling rate [Hz].
+    jitter : float
+        Worst step jitter [-].
+    """
     try:
         t = np.asarray(time, dtype=np.float64)
     except (TypeError, ValueError):
@@ -93,12 +138,12 @@ def validate_timebase(time: ArrayLike, *, rel_tol: float = 1e-3, name: str = "ti
     time : array_like
         Time stamps [s], 1-D.
     rel_tol : float, optional
-        Largest allowed step jitter, ``max|dt - median(dt)| / median(dt)``
+        Largest allowed step jitter, ``max|dt - median(dt)| / median(dt)`` [-]
         (default 1e-3, i.e. 0.1 %).
     name : str, optional
         What the time stamps are (e.g. ``"cut_03.csv, column 'time [ms]'"``),
         used to start error messages.
-    rows : array_like, optional
+    rows : array_like of int, optional
         Label of each stamp in messages (e.g. line numbers of a file); default
         the 0-based sample index.
     row_label : str, optional

@@ -100,9 +100,9 @@ class UnitInfo(NamedTuple):
     quantity : str
         The quantity it measures (e.g. ``"length"``).
     factor : float
-        Multiply by this to get SI ...
+        Multiply by this to get SI ... [SI unit per `unit`]
     offset : float
-        ... then add this (0 for every unit in the table).
+        ... then add this [SI unit] (0 for every unit in the table).
     """
 
     unit: str
@@ -371,7 +371,7 @@ def to_si(
     Parameters
     ----------
     values : array_like
-        Values in `unit` (any shape).
+        Values [`unit`] (any shape).
     unit : str
         Unit of `values`, e.g. ``"mm"``, ``"deg"``, ``"rpm"``.
     quantity : str, optional
@@ -420,7 +420,7 @@ def from_si(
     Parameters
     ----------
     values : array_like
-        Values in the SI unit of the quantity of `unit`.
+        Values [SI unit of the quantity of `unit`].
     unit : str
         Target unit, e.g. ``"mm"``.
     quantity : str, optional
@@ -457,7 +457,7 @@ def convert(
     Parameters
     ----------
     values : array_like
-        Values in `from_unit`.
+        Values [`from_unit`].
     from_unit, to_unit : str
         Units of one quantity, e.g. ``"mm/min"`` and ``"m/s"``.
     name : str, optional

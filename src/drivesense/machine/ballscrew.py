@@ -239,6 +239,17 @@ class BallScrewAxis:
     def from_dict(cls, values: dict, *, source: str = "axis parameters") -> "BallScrewAxis":
         """Build from a mapping with exactly the keys of the paper.
 
+        Parameters
+        ----------
+        values : dict
+            Parameter name -> value [SI unit of the parameter].
+        source : str, optional
+            Where the values come from (a file name), to start error messages.
+
+        Returns
+        -------
+        BallScrewAxis
+
         Raises
         ------
         ConfigError
