@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidSignalError
-from .xml_safe import XMLLimits, parse_bytes
+from .xml_safe import XMLLimits, local_name, parse_bytes
 
 __all__ = ["DataItem", "DeviceModel", "Observation", "StreamsDocument", "AgentError", "parse_devices",
            "parse_streams", "parse_shdr", "to_recording", "read_mtconnect", "parse_timestamp", "MTC_UNITS"]
@@ -62,10 +62,6 @@ _SPINDLE_TYPES = {"ROTARY_VELOCITY": "spindle_speed", "SPINDLE_SPEED": "spindle_
                   "AMPERAGE": "spindle_current", "ELECTRIC_CURRENT": "spindle_current",
                   "WATTAGE": "spindle_power", "LOAD": "spindle_load"}
 _LEVELS = ("NORMAL", "WARNING", "FAULT", "UNAVAILABLE")
-
-
-def _local(tag: Any) -> str:
-    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
 def snake_case(text: str) -> str:
@@ -190,20 +186,20 @@ def parse_devices(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
     data, name = _load(source)
     where = where or name
     root = parse_bytes(data, where=where, limits=limits).getroot()
-    if _local(root.tag) != "MTConnectDevices":
+    if local_name(root.tag) != "MTConnectDevices":
         _raise_agent_error(root, where)
-        raise InvalidSignalError(f"{where}: root <{_local(root.tag)}> is not MTConnectDevices")
-    header = next((dict(h.attrib) for h in root if _local(h.tag) == "Header"), {})
+        raise InvalidSignalError(f"{where}: root <{local_name(root.tag)}> is not MTConnectDevices")
+    header = next((dict(h.attrib) for h in root if local_name(h.tag) == "Header"), {})
     items: list[DataItem] = []
     devices = []
 
     def walk(el: Any, device: str) -> None:
-        comp, cname = _local(el.tag), el.get("name") or el.get("id") or ""
+        comp, cname = local_name(el.tag), el.get("name") or el.get("id") or ""
         for child in el:
-            tag = _local(child.tag)
+            tag = local_name(child.tag)
             if tag == "DataItems":
                 for di in child:
-                    if _local(di.tag) != "DataItem":
+                    if local_name(di.tag) != "DataItem":
                         continue
                     typ, sub = (di.get("type") or "").upper(), (di.get("subType") or "").upper()
                     rate = di.get("sampleRate")
@@ -218,7 +214,7 @@ def parse_devices(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
                     walk(c, device)
 
     for dev in root.iter("{*}Device"):
-        desc = next((d for d in dev if _local(d.tag) == "Description"), None)
+        desc = next((d for d in dev if local_name(d.tag) == "Description"), None)
         devices.append({"name": dev.get("name", ""), "uuid": dev.get("uuid", ""), "id": dev.get("id", ""),
                         "manufacturer": desc.get("manufacturer", "") if desc is not None else "",
                         "model": desc.get("model", "") if desc is not None else "",
@@ -295,7 +291,7 @@ class AgentError(InvalidSignalError):
 
 
 def _raise_agent_error(root: Any, where: str) -> None:
-    if _local(root.tag) == "MTConnectError":
+    if local_name(root.tag) == "MTConnectError":
         errors = [e for e in root.iter("{*}Error")]
         code = errors[0].get("errorCode", "") if errors else ""
         text = "; ".join(f"{e.get('errorCode', '')}: {(e.text or '').strip()}" for e in errors)
@@ -371,9 +367,9 @@ def parse_streams(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
     where = where or name
     root = parse_bytes(data, where=where, limits=limits).getroot()
     _raise_agent_error(root, where)
-    if _local(root.tag) != "MTConnectStreams":
-        raise InvalidSignalError(f"{where}: root <{_local(root.tag)}> is not MTConnectStreams")
-    header = next((dict(h.attrib) for h in root if _local(h.tag) == "Header"), {})
+    if local_name(root.tag) != "MTConnectStreams":
+        raise InvalidSignalError(f"{where}: root <{local_name(root.tag)}> is not MTConnectStreams")
+    header = next((dict(h.attrib) for h in root if local_name(h.tag) == "Header"), {})
     for key, attr in (("instance_id", "instanceId"), ("first_sequence", "firstSequence"),
                       ("last_sequence", "lastSequence"), ("next_sequence", "nextSequence")):
         if attr in header:
@@ -383,11 +379,11 @@ def parse_streams(source: str | Path | bytes, *, limits: XMLLimits = XMLLimits(m
                 raise InvalidSignalError(f"{where}: Header {attr}={header[attr]!r} is not an integer") from None
     obs: list[Observation] = []
     for group in root.iter("{*}Samples", "{*}Events", "{*}Condition"):
-        cat = _local(group.tag)
+        cat = local_name(group.tag)
         for el in group:
             if not isinstance(el.tag, str) or el.get("dataItemId") is None:
                 continue
-            tag = _local(el.tag)
+            tag = local_name(el.tag)
             at = f"{where}, line {el.sourceline}"
             t = parse_timestamp(el.get("timestamp", ""), at)
             seq = int(el.get("sequence")) if el.get("sequence", "").isdigit() else None

@@ -254,10 +254,6 @@ def _json_xml(value: Any, key: str | None = None) -> str:
     raise ConfigError(f"metadata value {value!r:.60} is not JSON")
 
 
-def local_name(tag: Any) -> str:
-    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
-
-
 def _canonical_personnel(value: Any) -> bool:
     return (isinstance(value, list) and bool(value) and all(
         isinstance(e, dict) and isinstance(e.get("name"), str) and e["name"].strip()

@@ -23,9 +23,9 @@ import xarray as xr
 from .. import units as _units
 from ..errors import ConfigError, DriveSenseError, InvalidSignalError, UnitError
 from ..recording import META_ATTR, Recording
-from .xml_format import (XML_NS, INTEGER_RE, JSON_NS, FORMAT_VERSION, NAMESPACE, SCHEMA_PATH, SUMMARY_XSLT_PATH, Experiment,
-                         b64_decode_into, local_name, default_sensor)
-from .xml_safe import DEFAULT_LIMITS, XMLLimits, parse_file, safe_iterparse
+from .xml_format import (FORMAT_VERSION, INTEGER_RE, JSON_NS, NAMESPACE, SCHEMA_PATH, SUMMARY_XSLT_PATH, XML_NS,
+                         Experiment, b64_decode_into, default_sensor)
+from .xml_safe import DEFAULT_LIMITS, XMLLimits, local_name, parse_file, safe_iterparse
 
 __all__ = ["read_experiment", "read_xml", "validate_xml", "transform_xml"]
 

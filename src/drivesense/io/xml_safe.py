@@ -32,7 +32,18 @@ from typing import IO, Any
 from ..errors import ConfigError, InvalidSignalError
 
 __all__ = ["XMLLimits", "DEFAULT_LIMITS", "check_prolog", "parser_options", "safe_iterparse",
-           "parse_bytes", "parse_file", "describe_syntax_error"]
+           "parse_bytes", "parse_file", "describe_syntax_error", "local_name"]
+
+
+def local_name(tag: Any) -> str:
+    """An element's tag without its ``{namespace}`` (``""`` for comments and processing instructions).
+
+    Parameters
+    ----------
+    tag : str or object
+        ``element.tag`` as lxml gives it.
+    """
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 _PROLOG_SCAN = 1 << 16  # bytes of prolog scanned for a DOCTYPE
 
