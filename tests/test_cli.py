@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -61,8 +62,10 @@ def test_estimate_csv_in_user_units_with_tare(work):
     assert res.exit_code == 0, res.output
     force = read_csv(out)
     assert force.channels == ["force_x"] and force.units("force_x") == "N"
-    meta_line, header = out.read_text().splitlines()[:2]
-    assert meta_line.startswith("# meta: ") and header.startswith("time [s]") and "force_x [N]" in header
+    header = out.read_text().splitlines()[0]
+    assert header.startswith("time [s]") and "force_x [N]" in header
+    assert list(pd.read_csv(out).columns) == header.split(",")        # other tools read it with defaults
+    assert read_csv(out).meta["latency_s"] == pytest.approx(0.3e-3)    # from the sidecar FORCE.csv.json
     info = json.loads((work / "est.json").read_text())
     assert info["method"] == "vibration"
     assert info["latency_s"] == pytest.approx(0.3e-3)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -95,7 +96,8 @@ def test_cli_estimate_method_model(groove, tmp_path):
     assert res.exit_code == 0, res.output
     force = read_csv(out)
     assert force.channels == ["force_x", "force_y", "force_z"] and force.n_samples == groove.n_samples
-    assert out.read_text().splitlines()[1] == "time [s],force_x [N],force_y [N],force_z [N]"
+    assert out.read_text().splitlines()[0] == "time [s],force_x [N],force_y [N],force_z [N]"
+    assert list(pd.read_csv(out).columns) == ["time [s]", "force_x [N]", "force_y [N]", "force_z [N]"]
     assert force.meta["latency_s"] == pytest.approx(0.02)       # the estimate's metadata travels in the CSV
     info = json.loads((tmp_path / "est.json").read_text())
     assert info["score_vs_reference"]["force_y"]["nrmse"] < 0.10 and info["latency_s"] == pytest.approx(0.02)

@@ -1,8 +1,10 @@
 """Recording: construction, validation, slicing, netCDF and CSV I/O."""
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from drivesense.errors import (
@@ -14,6 +16,7 @@ from drivesense.errors import (
     UnitError,
 )
 from drivesense.io import load_netcdf, read_csv, read_recording, write_csv, write_recording
+from drivesense.io.csv import sidecar_path
 from drivesense.recording import Recording, validate_timebase
 
 DATA = Path(__file__).parent / "data"
@@ -233,12 +236,24 @@ def test_csv_carries_metadata(tmp_path):
     rec = make_rec(n=50, fs=1000.0, name="meta").with_meta(nc_delay_s=0.004, score_window=[0.01, 0.04],
                                                                ratio=np.float32(1.5), label="µm, ä")
     path = write_csv(rec, tmp_path / "m.csv")
-    first = path.read_text().splitlines()[0]
-    assert first.startswith("# meta: {") and "provenance" not in first
+    assert path.read_text().splitlines()[0] == "time [s],x_table_position [m],x_current_ref [A]"
+    frame = pd.read_csv(path)                        # other tools read it with their defaults
+    assert list(frame.columns) == ["time [s]", "x_table_position [m]", "x_current_ref [A]"] and len(frame) == 50
+    side = json.loads(sidecar_path(path).read_text(encoding="utf-8"))
+    assert side["nc_delay_s"] == 0.004 and "provenance" not in side
     back = read_csv(path)
     assert back.meta["nc_delay_s"] == 0.004 and back.meta["score_window"] == [0.01, 0.04]
     assert back.meta["name"] == "meta" and back.meta["ratio"] == 1.5 and back.meta["label"] == "µm, ä"
     assert read_csv(path, meta={"nc_delay_s": 0.0}).meta["nc_delay_s"] == 0.0     # the caller's meta wins
+    write_csv(make_rec(n=50), path)          # rewritten without metadata: the old sidecar must not stay
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.csv"] and "nc_delay_s" not in read_csv(path).meta
+    # older files: the metadata on a '# meta:' line before the header
+    (tmp_path / "old.csv").write_text('# meta: {"nc_delay_s": 0.002}\ntime [s],force_x [N]\n0,1\n0.001,1\n')
+    assert read_csv(tmp_path / "old.csv").meta["nc_delay_s"] == 0.002
+    (tmp_path / "side.csv.json").write_text("[1]")
+    (tmp_path / "side.csv").write_text("time [s],force_x [N]\n0,1\n0.001,1\n")
+    with pytest.raises(InvalidSignalError, match="side.csv.json' must hold a JSON object"):
+        read_csv(tmp_path / "side.csv")
     (tmp_path / "bad.csv").write_text("# meta: {nope\ntime [s],force_x [N]\n0,1\n0.001,1\n")
     with pytest.raises(InvalidSignalError, match=r"bad.csv, line 1: the '# meta:' line is not valid JSON"):
         read_csv(tmp_path / "bad.csv")
@@ -259,11 +274,11 @@ def test_write_read_csv_round_trip(tmp_path):
     for c in rec.channels:
         np.testing.assert_array_equal(exact[c], rec[c])
     out = write_recording(rec, tmp_path / "user.csv", units={"time": "ms", "x_table_position": "mm"})
-    assert out.read_text().splitlines()[1] == "time [ms],x_table_position [mm],x_current_ref [A]"
+    assert out.read_text().splitlines()[0] == "time [ms],x_table_position [mm],x_current_ref [A]"
     back = read_recording(out)
     assert back.fs == rec.fs and back.t0 == rec.t0
     np.testing.assert_allclose(back["x_table_position"], rec["x_table_position"], rtol=1e-14)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["si.csv", "user.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["si.csv", "si.csv.json", "user.csv", "user.csv.json"]
     with pytest.raises(UnitError):
         write_csv(rec, tmp_path / "bad.csv", units={"x_current_ref": "mm"})
     assert not (tmp_path / "bad.csv").exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -161,6 +162,9 @@ def test_cli_simulate_track_and_calibrate(tmp_path):
     res = runner.invoke(app, ["wear", "simulate", "G", "--seed", "2", "--out", str(session),
                               "--json", str(tmp_path / "truth.json")])
     assert res.exit_code == 0, res.output
+    assert session.read_text().startswith("calibration,distance [m],")      # the header first: pandas reads it
+    assert len(pd.read_csv(session).columns) == 11
+    assert "experiment G" in json.loads((tmp_path / "G.csv.json").read_text())["source"]
     res = runner.invoke(app, ["wear", "track", str(session), "--json", str(tmp_path / "track.json"),
                               "--plot", str(tmp_path / "track.png")])
     assert res.exit_code == 0, res.output

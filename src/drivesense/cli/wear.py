@@ -30,22 +30,30 @@ def _read(path: Path, diameter: Optional[float], flutes: Optional[int], mode: st
 
 
 def _write_session(life, path: Path) -> Path:
-    """Write a simulated tool life as a session CSV in shop units (what a user's logger would give)."""
-    from drivesense.io import write_text_file
+    """Write a simulated tool life as a session CSV in shop units (what a user's logger would give).
+
+    The CSV starts with its header (other tools read it with their defaults); what it is goes into the
+    metadata sidecar ``SESSION.csv.json``.
+    """
+    from drivesense.io import write_json_file, write_text_file
+    from drivesense.io.csv import sidecar_path
 
     exp, t = life.experiment, life.table
     head = ["calibration", "distance [m]", "diameter [mm]", "flutes", "axial_depth [mm]", "spindle_speed [rpm]",
             "feed_per_tooth [mm]", "entry_angle [deg]", "exit_angle [deg]", "spindle_power [W]", "air_power [W]"]
-    lines = [f"# drivesense wear simulate: experiment {exp.name} of the paper's Table 1 ({exp.tool_material}, "
-             f"{exp.flutes} flute(s), calibrating on {exp.calibration_material}), seed {life.seed}",
-             "# one row per calibration cut: mean spindle power in the cut and in the air cut before it",
-             ",".join(head)]
+    about = {"name": path.stem, "source": f"drivesense wear simulate: experiment {exp.name} of the paper's Table 1 "
+             f"({exp.tool_material}, {exp.flutes} flute(s), calibrating on {exp.calibration_material})",
+             "seed": life.seed, "rows": "one per calibration cut: mean spindle power in the cut and in the air cut "
+                                        "before it"}
+    lines = [",".join(head)]
     for c, k, d, sp, ap in zip(t.cuts, t.calibration, t.distance, life.spindle_power, life.air_power):
         lines.append(",".join([str(int(k)), f"{d:.6g}", f"{c.diameter * 1e3:.6g}", str(c.flutes),
                                f"{c.axial_depth * 1e3:.6g}", f"{c.spindle_speed * 30 / math.pi:.6g}",
                                f"{c.feed_per_tooth * 1e3:.6g}", f"{math.degrees(c.entry_angle):.6g}",
                                f"{math.degrees(c.exit_angle):.6g}", f"{sp:.6g}", f"{ap:.6g}"]))
-    return write_text_file(path, "\n".join(lines) + "\n")
+    write_text_file(path, "\n".join(lines) + "\n")
+    write_json_file(sidecar_path(path), about)
+    return path
 
 
 @wear_app.command("simulate")

@@ -11,9 +11,12 @@ Format
   within ``rel_tol``.  Without one, ``fs`` must be given.
 - Bare axis channel names (``current_ref``, ``motor_angle``,
   ``table_position``...) get the prefix ``{axis}_``.
-- A comment line ``# meta: {...}`` (JSON object) before the header carries the
-  Recording's metadata (``name``, ``nc_delay_s``, ``score_window``...);
-  :func:`write_csv` writes one, :func:`read_csv` reads it back.
+- The Recording's metadata (``name``, ``nc_delay_s``, ``score_window``,
+  ``latency_s``...) lives beside the CSV in a sidecar ``FILE.csv.json`` (a JSON
+  object): :func:`write_csv` writes it, :func:`read_csv` reads it back, so the
+  CSV itself loads with ``pandas.read_csv`` defaults and in spreadsheets.
+  Files of older versions carry it on a comment line ``# meta: {...}`` before
+  the header; :func:`read_csv` still reads that.
 
 Values are converted to SI; the provenance lists every conversion and rename.
 """
@@ -38,7 +41,7 @@ from ..metadata import meta_to_json
 if TYPE_CHECKING:  # pragma: no cover
     from ..recording import Recording
 
-__all__ = ["read_csv", "write_csv", "BARE_AXIS_CHANNELS"]
+__all__ = ["read_csv", "write_csv", "sidecar_path", "BARE_AXIS_CHANNELS"]
 
 #: Column names that are prefixed with ``{axis}_`` when read.
 BARE_AXIS_CHANNELS = ("current_ref", "current", "motor_angle", "table_position",
@@ -56,6 +59,36 @@ def _decode(raw: bytes) -> str:
 
 
 _META_PREFIX = "# meta:"
+
+
+def sidecar_path(path: str | Path) -> Path:
+    """The metadata sidecar of a CSV file: ``FORCE.csv`` -> ``FORCE.csv.json``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    return path.with_name(path.name + ".json")
+
+
+def _read_sidecar(path: Path) -> dict:
+    """The metadata of the sidecar of `path` ({} without one); errors name the sidecar."""
+    from . import read_json_file
+
+    side = sidecar_path(path)
+    if not side.is_file():
+        return {}
+    found = read_json_file(side, "metadata sidecar")
+    if not isinstance(found, dict):
+        raise InvalidSignalError(f"metadata sidecar '{side}' must hold a JSON object, got "
+                                 f"{type(found).__name__}")
+    return found
 
 
 def _find_header(path: Path) -> tuple[int, str, dict]:
@@ -142,7 +175,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         Allowed step jitter of the time column as a fraction of the median
         step [-], see :func:`drivesense.recording.validate_timebase`.
     meta : mapping, optional
-        Metadata for the Recording, over the file's ``# meta:`` line; ``name``
+        Metadata for the Recording, over the file's own (its sidecar
+        ``FILE.csv.json``, or the ``# meta:`` line of older files); ``name``
         defaults to the file stem.
 
     Returns
@@ -259,7 +293,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
 
     parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
             ([f"converted {', '.join(converted)}"] if converted else []) + [timebase]
-    meta = {"name": path.stem, **file_meta, **dict(meta or {})}
+    meta = {"name": path.stem, **file_meta, **_read_sidecar(path), **dict(meta or {})}
     rec = Recording.from_arrays(channels, fs=fs, t0=t0, units=si_units, meta=meta)
     return rec.with_provenance(f"read_csv {path.name}: " + "; ".join(parts))
 
@@ -302,8 +336,11 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
     Notes
     -----
     Values are written with :func:`repr` (shortest text that reads back to the
-    same float64), so SI output reads back bit-exactly.  The metadata is written
-    on a ``# meta:`` comment line (JSON; provenance is not).
+    same float64), so SI output reads back bit-exactly.  The first line is the
+    header, so the file loads with ``pandas.read_csv`` defaults.  The metadata
+    (JSON; provenance is not) goes beside it into the sidecar ``FILE.csv.json``
+    (:func:`sidecar_path`), written atomically with the CSV; a stale sidecar is
+    removed when the Recording has no metadata.
     """
     from . import atomic_output
 
@@ -324,12 +361,17 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
         cols.append(_units.from_si(rec[name], unit, quantity=quantity, name=name))
         head.append(f"{name} [{unit}]")
     text_cols = [map(repr, c.tolist()) for c in cols]
+    meta = {k: v for k, v in rec.meta.items() if k != "provenance"}   # reading adds its own
+    meta_text = meta_to_json(meta) + "\n" if meta else None
+    side = sidecar_path(path)
     with atomic_output(path) as tmp:
         with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            meta = {k: v for k, v in rec.meta.items() if k != "provenance"}   # reading adds its own
-            if meta:
-                fh.write(f"{_META_PREFIX} {meta_to_json(meta)}\n")
             fh.write(",".join(head) + "\n")
             fh.write("\n".join(map(",".join, zip(*text_cols))))
             fh.write("\n")
+        if meta_text is None:     # no metadata: a sidecar left from an earlier write would lie
+            side.unlink(missing_ok=True)
+        else:
+            with atomic_output(side) as tmp_side:
+                tmp_side.write_text(meta_text, encoding="utf-8")
     return path
