@@ -154,7 +154,7 @@ def test_cli_fit_and_predict(tmp_path):
                               str(tmp_path / "pred.csv"), "--force-unit", "lbf"])
     assert res.exit_code == 0, res.output
     lines = (tmp_path / "pred.csv").read_text().splitlines()
-    assert lines[0] == "cut,slide_speed [mm/min],cutting_power [W],force_x_predicted [lbf]"
+    assert lines[0] == "cut,slide_speed [mm/min],cutting_power [W],force_x_predicted [lbf],flag"
     assert -150 < float(lines[1].split(",")[3]) < -50
     far = tmp_path / "far.csv"
     far.write_text("slide_speed [in/min],total_power [hp],tare_power [hp]\n80,0.0005,0.00025\n")
@@ -164,3 +164,32 @@ def test_cli_fit_and_predict(tmp_path):
     res = runner.invoke(app, ["feedpower", "predict", str(new), "--model", str(model), "--out",
                               str(tmp_path / "p.csv"), "--force-unit", "kg"])
     assert res.exit_code == 2 and "force-unit" in res.output
+
+
+def test_cli_predict_flags_out_of_range_rows_and_predicts_the_others(tmp_path):
+    """One cut outside the calibrated speeds does not refuse the file: it is flagged, the others predicted."""
+    import pandas as pd
+
+    model = tmp_path / "model.json"
+    assert runner.invoke(app, ["feedpower", "fit", str(TABLE3), "--model", str(model)]).exit_code == 0
+    cuts = tmp_path / "mixed.csv"
+    cuts.write_text("cut,slide_speed [in/min],total_power [hp],tare_power [hp]\n"
+                    "A,45,0.0005,0.00025\nB,80,0.0005,0.00025\nC,50,0.0006,0.00025\n")
+    out = tmp_path / "pred.csv"
+    res = runner.invoke(app, ["feedpower", "predict", str(cuts), "--model", str(model), "--out", str(out),
+                              "--json", str(tmp_path / "p.json")])
+    assert res.exit_code == 0, res.output
+    assert "warning:" in res.output and "cut B" in res.output and "outside the calibrated range" in res.output
+    table = pd.read_csv(out)
+    assert list(table["flag"]) == ["ok", "out_of_range", "ok"]
+    force = table["force_x_predicted [N]"]
+    assert np.isfinite(force[0]) and np.isnan(force[1]) and np.isfinite(force[2])
+    info = json.loads((tmp_path / "p.json").read_text())
+    assert info["predicted_n"][1] is None and info["out_of_range"][0]["cut"] == "B"
+    assert model_predicts_nan_only_where_flagged(FeedPowerModel.load(model), read_feed_cuts(cuts))
+
+
+def model_predicts_nan_only_where_flagged(model, cuts) -> bool:
+    flags = model.coverage_flags(cuts)
+    force = model.predict(cuts, skip_out_of_range=True)
+    return [bool(f) for f in flags] == list(np.isnan(force))

@@ -133,3 +133,20 @@ def test_kernel_with_a_causal_fir_skip_matches_pytorch_and_streams():
         i += size
     parts.append(run_lstm(w, st, x[i:]))
     assert np.array_equal(np.concatenate(parts), batch) and st.tail.shape == (4, 14)
+
+
+def test_zero_epochs_are_refused_by_the_config_and_the_cli(tmp_path):
+    """``train --epochs 0`` used to save an untrained model."""
+    from typer.testing import CliRunner
+
+    from drivesense.cli import app
+    from drivesense.errors import ConfigError
+    from drivesense.learn.train import TrainConfig
+
+    with pytest.raises(ConfigError, match="'epochs' must be an integer >= 1"):
+        TrainConfig(epochs=0)
+    (tmp_path / "data").mkdir()
+    res = CliRunner().invoke(app, ["train", "lstm", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "m"),
+                                   "--epochs", "0"])
+    assert res.exit_code == 2 and "--epochs must be >= 1" in res.output
+    assert not (tmp_path / "m").exists()

@@ -12,7 +12,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-__all__ = ["console", "err_console", "friendly", "write_json", "progress_bar", "accuracy_table", "read_trace",
+__all__ = ["console", "err_console", "friendly", "warn", "write_json", "progress_bar", "accuracy_table", "read_trace",
            "build_estimator", "save_recording"]
 
 console = Console()
@@ -34,6 +34,11 @@ def friendly(fn):
             raise typer.Exit(2) from None
 
     return wrapper
+
+
+def warn(text: str) -> None:
+    """One yellow ``warning: ...`` line on stderr (the text is printed as is: no markup)."""
+    err_console.print(f"[bold yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True)
 
 
 def write_json(path: Optional[Path], payload: dict) -> None:

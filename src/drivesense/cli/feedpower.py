@@ -71,30 +71,42 @@ def predict(
     force_unit: Annotated[str, typer.Option(help="Unit of the force columns written: N, kN or lbf.")] = "N",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
 ) -> None:
-    """Predict the average x-force of each cut; refuses slide speeds outside the calibrated range."""
+    """Predict the average x-force of each cut; cuts outside the calibrated range are flagged, not predicted."""
     import numpy as np
 
     from drivesense import units
+    from drivesense.cli.common import warn
     from drivesense.identify.feed_power import FeedPowerModel, read_feed_cuts
     from drivesense.io import atomic_output
 
     units.unit_info(force_unit, quantity=units.FORCE, name="--force-unit")
     model = FeedPowerModel.load(model_path)
     data = read_feed_cuts(cuts)
-    force = model.predict(data)
+    force = model.predict(data, skip_out_of_range=True)
+    reasons = model.coverage_flags(data)
     f_out = units.from_si(force, force_unit)
     head = ["cut", "slide_speed [mm/min]", "cutting_power [W]", f"force_x_predicted [{force_unit}]"]
     tare = None
     if data.cutting_power is None and data.tare_power is None:
         tare = np.interp(data.slide_speed, model.tare_speeds, model.tare_powers)
     cols = [list(data.labels), data.slide_speed * 6e4, data.power(tare), f_out]
-    info = {"cuts": str(cuts), "model": str(model_path), "output": str(out), "predicted_n": force.tolist()}
+    flagged = [i for i, r in enumerate(reasons) if r]
+    info = {"cuts": str(cuts), "model": str(model_path), "output": str(out),
+            "predicted_n": [None if i in flagged else float(v) for i, v in enumerate(force)],
+            "out_of_range": [{"cut": data.labels[i], "reason": reasons[i]} for i in flagged]}
     if data.force_x is not None:
         head += [f"force_x_measured [{force_unit}]", "error [%]"]
         err = 100 * (force / data.force_x - 1)
         cols += [units.from_si(data.force_x, force_unit), err]
-        info["mean_abs_error"] = float(np.mean(np.abs(err)) / 100)
-    lines = [",".join(head)] + [",".join(str(c[i]) if k == 0 else f"{c[i]:.6g}" for k, c in enumerate(cols))
+        info["mean_abs_error"] = float(np.nanmean(np.abs(err)) / 100)
+    # last column: 'ok' or why the cut was not predicted (empty cells above: pandas reads them as NaN)
+    flags = ["out_of_range" if r else "ok" for r in reasons]
+    head.append("flag")
+
+    def cell(value) -> str:
+        return "" if isinstance(value, float) and not np.isfinite(value) else f"{value:.6g}"
+
+    lines = [",".join(head)] + [",".join([str(cols[0][i]), *(cell(c[i]) for c in cols[1:]), flags[i]])
                                 for i in range(len(data))]
     with atomic_output(out) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -102,8 +114,12 @@ def predict(
     for h in head:
         table.add_column(escape(h), justify="right")
     for i in range(len(data)):
-        table.add_row(*[str(c[i]) if k == 0 else f"{c[i]:.4g}" for k, c in enumerate(cols)])
+        table.add_row(escape(str(cols[0][i])), *[f"{c[i]:.4g}" if np.isfinite(c[i]) else "-" for c in cols[1:]],
+                      escape(flags[i]))
     console.print(table)
+    if flagged:
+        warn(f"{len(flagged)} of {len(data)} cut(s) not predicted (flag 'out_of_range' in {out}): "
+             + "; ".join(f"cut {data.labels[i]}: {reasons[i]}" for i in flagged))
     if "mean_abs_error" in info:
         console.print(f"mean |error| against the measured force: {100 * info['mean_abs_error']:.1f} %")
     console.print(f"wrote {out}")

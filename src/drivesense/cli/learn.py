@@ -73,6 +73,8 @@ def train(
     from drivesense.learn.dataset import load_dataset
     from drivesense.learn.train import TrainConfig, require_torch
 
+    if epochs < 1:
+        raise ConfigError(f"--epochs must be >= 1, got {epochs} (0 epochs would save an untrained model)")
     require_torch()
     if kind not in ("lstm", "hybrid"):
         raise ConfigError(f"unknown learned method {kind!r}; choose lstm or hybrid")

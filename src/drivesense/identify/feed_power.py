@@ -14,7 +14,8 @@ direction: negative opposes a +x feed, as in Table 3); ``F0`` [N] is an offset t
 scale too: with Table 3's 0.01875 HP/V it comes out at 32-36, not a motor efficiency, so that printed
 sensitivity is not the sensor's true watts per volt (the force fit does not depend on it).
 Predictions are refused outside the calibrated slide speeds (and positions, when given: the tare
-jumps where a slide cover extends). ``per_speed_fits`` gives each speed's own line (Fig. 14's R^2).
+jumps where a slide cover extends), or left NaN cut by cut (``predict(cuts, skip_out_of_range=True)``).
+``per_speed_fits`` gives each speed's own line (Fig. 14's R^2).
 """
 
 from __future__ import annotations
@@ -314,13 +315,44 @@ class FeedPowerModel(JsonFileMixin):
         out = np.abs(self.a0 + self.a1 * v)
         return float(out) if out.ndim == 0 else out
 
-    def predict(self, cuts: FeedCuts) -> np.ndarray:
+    def coverage_flags(self, cuts: FeedCuts) -> list[str]:
+        """Why each cut lies outside the calibrated range, or ``""`` where it lies inside.
+
+        Parameters
+        ----------
+        cuts : FeedCuts
+            Cuts with slide speed (and slide position, if the model has a position range).
+
+        Returns
+        -------
+        list of str
+            Per cut: ``""``, or a sentence naming the slide speed or position and
+            the calibrated range.
+        """
+        v = cuts.slide_speed
+        lo, hi = self.speed_range
+        tol = _SPEED_TOL * hi
+        flags = [f"slide speed {s * 6e4:.4g} mm/min is outside the calibrated range {lo * 6e4:.4g}-{hi * 6e4:.4g} "
+                 "mm/min; calibrate at that speed first" if (s < lo - tol or s > hi + tol) else "" for s in v]
+        if cuts.slide_position is not None and self.position_range is not None:
+            plo, phi = self.position_range
+            for i, x in enumerate(cuts.slide_position):
+                if not flags[i] and not plo <= x <= phi:
+                    flags[i] = (f"slide position {x * 1e3:.4g} mm is outside the calibrated {plo * 1e3:.4g}-"
+                                f"{phi * 1e3:.4g} mm (the tare changes there, e.g. where a slide cover extends)")
+        return flags
+
+    def predict(self, cuts: FeedCuts, *, skip_out_of_range: bool = False) -> np.ndarray:
         """Average x-force of each cut [N].
 
         Parameters
         ----------
         cuts : FeedCuts
             Cuts with slide speed and power (tare from the model where they have none).
+        skip_out_of_range : bool, optional
+            Give NaN for the cuts outside the calibrated range (see
+            :meth:`coverage_flags`) instead of refusing the whole set, as long as
+            one cut lies inside.
 
         Returns
         -------
@@ -329,30 +361,22 @@ class FeedPowerModel(JsonFileMixin):
         Raises
         ------
         CoverageError
-            A slide speed (or position) outside the calibrated range, naming the cut.
+            A slide speed (or position) outside the calibrated range, naming the cut
+            (with `skip_out_of_range`: only when every cut lies outside).
         """
         v = cuts.slide_speed
-        lo, hi = self.speed_range
-        tol = _SPEED_TOL * hi
-        bad = np.flatnonzero((v < lo - tol) | (v > hi + tol))
-        if bad.size:
-            i = int(bad[0])
-            raise CoverageError(f"cut {cuts.labels[i]}: slide speed {v[i] * 6e4:.4g} mm/min is outside the calibrated "
-                                f"range {lo * 6e4:.4g}-{hi * 6e4:.4g} mm/min; calibrate at that speed first")
-        if cuts.slide_position is not None and self.position_range is not None:
-            plo, phi = self.position_range
-            bad = np.flatnonzero((cuts.slide_position < plo) | (cuts.slide_position > phi))
-            if bad.size:
-                i = int(bad[0])
-                raise CoverageError(f"cut {cuts.labels[i]}: slide position {cuts.slide_position[i] * 1e3:.4g} mm is "
-                                    f"outside the calibrated {plo * 1e3:.4g}-{phi * 1e3:.4g} mm (the tare changes "
-                                    "there, e.g. where a slide cover extends)")
+        flags = self.coverage_flags(cuts)
+        bad = [i for i, f in enumerate(flags) if f]
+        if bad and (not skip_out_of_range or len(bad) == len(flags)):
+            raise CoverageError(f"cut {cuts.labels[bad[0]]}: {flags[bad[0]]}")
         tare = None
         if cuts.cutting_power is None and cuts.tare_power is None:
             if not self.tare_speeds:
                 raise MissingChannelError("the cuts have no 'tare_power' and the model holds no tare table")
             tare = np.interp(v, self.tare_speeds, self.tare_powers)
-        return (self.a0 + self.a1 * v) * cuts.power(tare) / v + self.f0
+        force = (self.a0 + self.a1 * v) * cuts.power(tare) / v + self.f0
+        force[bad] = np.nan
+        return force
 
     def to_dict(self) -> dict:
         """JSON-ready parameters (SI).

@@ -142,6 +142,8 @@ class TrainConfig:
     grad_clip: float = 1.0
 
     def __post_init__(self) -> None:
+        if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
+            raise ConfigError(f"'epochs' must be an integer >= 1 (0 saves an untrained model), got {self.epochs!r}")
         if isinstance(self.position_harmonics, bool) or not isinstance(self.position_harmonics, int) \
                 or not 0 <= self.position_harmonics <= 8:
             raise ConfigError(f"'position_harmonics' must be an integer in 0..8, got {self.position_harmonics!r}")
