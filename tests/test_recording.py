@@ -282,3 +282,20 @@ def test_write_read_csv_round_trip(tmp_path):
     with pytest.raises(UnitError):
         write_csv(rec, tmp_path / "bad.csv", units={"x_current_ref": "mm"})
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_json_files_are_strict_json(tmp_path):
+    """NaN/inf (nested in dicts, lists, tuples, numpy arrays and scalars) are written as null, never NaN."""
+    from drivesense.io import strict_json, write_json_file
+
+    payload = {"harmonic_error": float("nan"), "rows": [{"x": np.float64("inf")}, (np.float32("-inf"), 1.5)],
+               "array": np.array([1.0, np.nan]), "n": np.int64(3), "ok": True, "none": None}
+
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+
+    text = write_json_file(tmp_path / "out.json", payload).read_text()
+    back = json.loads(text, parse_constant=refuse)
+    assert back == {"harmonic_error": None, "rows": [{"x": None}, [None, 1.5]], "array": [1.0, None], "n": 3,
+                    "ok": True, "none": None}
+    assert json.loads(strict_json(payload, indent=None), parse_constant=refuse) == back

@@ -33,7 +33,9 @@ def _emit(json_path: Optional[str], payload) -> bool:
     if json_path is None:
         return False
     if json_path == "-":
-        typer.echo(json.dumps(payload, indent=2, default=float))
+        from drivesense.io import strict_json
+
+        typer.echo(strict_json(payload))
     else:
         write_json(Path(json_path), payload)
     return True

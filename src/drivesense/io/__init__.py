@@ -26,6 +26,7 @@ __all__ = [
     "atomic_output",
     "write_text_file",
     "write_json_file",
+    "strict_json",
     "read_json_file",
     "JsonFileMixin",
 ]
@@ -88,8 +89,49 @@ def write_text_file(path: str | Path, text: str) -> Path:
     return path
 
 
+def _finite(obj):
+    """`obj` with every NaN/inf float (nested in dicts, lists, tuples, numpy arrays/scalars) as None."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def strict_json(payload, *, indent: int | None = 2) -> str:
+    """``payload`` as strict JSON text: NaN and +-inf become ``null`` (JSON has no such numbers).
+
+    Numpy scalars and arrays are written as numbers and lists; other objects
+    through ``float()``.
+
+    Parameters
+    ----------
+    payload : object
+        JSON-serialisable data.
+    indent : int, optional
+        Indentation [characters per level] (None: compact).
+
+    Returns
+    -------
+    str
+    """
+    import json
+
+    return json.dumps(_finite(payload), indent=indent, default=lambda o: _finite(float(o)), allow_nan=False)
+
+
 def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Path:
-    """Write ``payload`` as JSON, atomically (numpy scalars written as floats).
+    """Write ``payload`` as strict JSON (see :func:`strict_json`: NaN/inf as ``null``), atomically.
 
     Parameters
     ----------
@@ -98,11 +140,14 @@ def write_json_file(path: str | Path, payload, *, indent: int | None = 2) -> Pat
     payload : object
         JSON-serialisable data.
     indent : int, optional
-        Indentation (None: compact).
-    """
-    import json
+        Indentation [characters per level] (None: compact).
 
-    return write_text_file(path, json.dumps(payload, indent=indent, default=float) + "\n")
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    return write_text_file(path, strict_json(payload, indent=indent) + "\n")
 
 
 def _parse_text_file(path: str | Path, what: str, parse, errors: tuple, problem: str):
