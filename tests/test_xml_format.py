@@ -361,3 +361,47 @@ def test_import_streams_with_memory_under_twice_the_samples(tmp_path):
     mem = json.loads(out.strip().splitlines()[-1])
     data = n * chans * 8
     assert mem["peak"] - mem["before"] < 2 * data, f"peak grew {(mem['peak'] - mem['before']) / data:.2f}x the samples"
+
+
+def test_simulated_idle_runs_export_as_measurements_of_distinct_names(tmp_path):
+    """Idle runs named alike (same name whatever the seed) became measurements of one name; now each is unique."""
+    from dataclasses import replace
+
+    from drivesense.sim.scenarios import ScenarioSettings, condition_by_name, simulate_idle
+
+    cond = condition_by_name("feed_r6_S1000")[0]
+    short = replace(ScenarioSettings(), duration=0.2, t_contact=0.1)
+    runs = [*simulate_idle(cond, short, repeats=2, seed=5), simulate_idle(cond, short, repeats=1, seed=9)[0]]
+    names = [r.name for r in runs]
+    assert len(set(names)) == 3 and all("seed" in n for n in names), names
+    for k, rec in enumerate(runs):
+        write_recording(rec, tmp_path / f"idle{k}.nc")
+    xml = tmp_path / "idle.xml"
+    res = runner.invoke(app, ["xml", "export", *(str(tmp_path / f"idle{k}.nc") for k in range(3)), "--out", str(xml)])
+    assert res.exit_code == 0, res.output
+    assert [m["name"] for m in validate_xml(xml)["measurements"]] == names
+    res = runner.invoke(app, ["xml", "import", str(xml), "--measurement", names[2], "--out", str(tmp_path / "b.nc")])
+    assert res.exit_code == 0, res.output
+    assert read_recording(tmp_path / "b.nc").equals(runs[2])
+
+
+def test_writer_makes_repeated_measurement_names_unique(tmp_path):
+    path = tmp_path / "dup.xml"
+    write_xml([_rec(seed=1), _rec(seed=2), _rec(seed=3).with_meta(name="cut 1 (2)")], path)
+    back = read_experiment(path).recordings
+    assert [r.name for r in back] == ["cut 1", "cut 1 (3)", "cut 1 (2)"]
+    assert "renamed 'cut 1' to 'cut 1 (3)'" in back[1].meta["provenance"][-1]
+    assert read_xml(path, measurement="cut 1").equals(_rec(seed=1))
+
+
+def test_ambiguous_measurement_name_is_an_error_listing_the_choices(tmp_path):
+    """A file from another tool may repeat a name: --measurement NAME must not silently take the first."""
+    path = tmp_path / "foreign.xml"
+    write_xml([_rec(seed=1).with_meta(name="run"), _rec(seed=2).with_meta(name="other"),
+               _rec(seed=3).with_meta(name="run B")], path)
+    path.write_text(path.read_text().replace("run B", "run"))
+    with pytest.raises(ConfigError, match="2 measurements are named 'run' .indices 0, 2.; choose one"):
+        read_xml(path, measurement="run")
+    res = runner.invoke(app, ["xml", "import", str(path), "--measurement", "run", "--out", str(tmp_path / "r.nc")])
+    assert res.exit_code == 2 and "0 'run', 1 'other', 2 'run'" in res.output, res.output
+    assert not (tmp_path / "r.nc").exists()

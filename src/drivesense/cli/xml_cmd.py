@@ -59,7 +59,8 @@ def import_(
     file: Annotated[Path, typer.Argument(help="Experiment file (.xml).")],
     out: Annotated[Path, typer.Option("--out", help="Output recording: .nc (lossless) or .csv.")],
     measurement: Annotated[Optional[str], typer.Option(
-        help="Measurement name or 0-based index (needed when the file holds several).")] = None,
+        help="Measurement name or 0-based index (needed when the file holds several; a name several "
+             "measurements share is refused, listing their indices).")] = None,
 ) -> None:
     """Read one measurement of an experiment file into a recording file."""
     from drivesense.cli.common import save_recording

@@ -163,6 +163,33 @@ def _as_recordings(recordings: Any) -> tuple[Recording, ...]:
     return recs
 
 
+def _unique_names(recs: tuple[Recording, ...]) -> tuple[Recording, ...]:
+    """The recordings with unique names: a repeated ``meta["name"]`` gets `` (2)``, `` (3)``... (noted in provenance).
+
+    Measurement names select a measurement (``read_xml(measurement=NAME)``,
+    ``xml import --measurement NAME``), so one experiment never holds two
+    measurements of one name.
+    """
+    taken = {r.meta.get("name") for r in recs}
+    seen: set = set()
+    out = []
+    for rec in recs:
+        name = rec.meta.get("name")
+        if isinstance(name, str) and name in seen:
+            k = 2
+            while f"{name} ({k})" in taken:
+                k += 1
+            new = f"{name} ({k})"
+            taken.add(new)
+            prov = rec.meta.get("provenance", [])
+            step = f"write_xml: renamed {name!r} to {new!r} (measurement names are unique within an experiment)"
+            rec = rec.with_meta(name=new, provenance=[*prov, step] if isinstance(prov, list) else [step])
+            name = new
+        seen.add(name)
+        out.append(rec)
+    return tuple(out)
+
+
 def _json_texts(value: Any, out: list[str]) -> None:
     if isinstance(value, dict):
         for k, v in value.items():
@@ -445,6 +472,13 @@ def write_xml(recordings: Recording | Sequence[Recording] | Experiment, path: st
         Such a ``personnel`` is marked ``inRecording="false"`` and is not read
         back into the metadata.
 
+    Notes
+    -----
+    Measurement names (``meta["name"]``) are unique within an experiment, as
+    they select a measurement on reading: a name already used by an earlier
+    measurement gets `` (2)``, `` (3)``... appended, in the file and so on
+    reading back, and the renaming is noted in that measurement's provenance.
+
     Returns
     -------
     Path
@@ -463,7 +497,7 @@ def write_xml(recordings: Recording | Sequence[Recording] | Experiment, path: st
     if dtype not in ("float64", "float32"):
         raise ConfigError(f"dtype must be 'float64' or 'float32', got {dtype!r}")
     exp = recordings if isinstance(recordings, Experiment) else None
-    recs = _as_recordings(recordings)
+    recs = _unique_names(_as_recordings(recordings))
     exp_id = experiment_id or (exp.id if exp else uuid.uuid4().hex)
     when = created or (exp.created if exp else utc_now())
     people, common, own = _split_meta([r.meta for r in recs])

@@ -409,7 +409,8 @@ def read_xml(path: str | Path, *, measurement: int | str | None = None, validate
     Raises
     ------
     ConfigError
-        Several measurements and none chosen, or no such measurement.
+        Several measurements and none chosen, no such measurement, or a
+        name that several measurements share (the message lists the indices).
     """
     exp = read_experiment(path, validate=validate, limits=limits)
     names = [r.name for r in exp.recordings]
@@ -421,7 +422,12 @@ def read_xml(path: str | Path, *, measurement: int | str | None = None, validate
         if -len(names) <= measurement < len(names):
             return exp.recordings[measurement]
     elif measurement in names:
-        return exp.recordings[names.index(measurement)]
+        hits = [k for k, n in enumerate(names) if n == measurement]
+        if len(hits) > 1:      # files of other tools may repeat a name (drivesense's writer does not)
+            choices = ", ".join(f"{k} {n!r}" for k, n in enumerate(names))
+            raise ConfigError(f"{Path(path).name}: {len(hits)} measurements are named {measurement!r} (indices "
+                              f"{', '.join(map(str, hits))}); choose one by its 0-based index: {choices}")
+        return exp.recordings[hits[0]]
     raise ConfigError(f"{Path(path).name}: no measurement {measurement!r} (has {names})")
 
 

@@ -334,10 +334,12 @@ def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, 
     Returns
     -------
     list of Recording
-        Channels as :func:`simulate_cut`, forces zero.
+        Channels as :func:`simulate_cut`, forces zero; run ``k`` is named
+        ``idle_{condition}_{k + 1}_seed{seed + k}``.
     """
     settings = _settings(settings, ideal)
-    return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}") for k in range(repeats)]
+    # the name holds the run index and its seed: runs of one call, and of calls with other seeds, differ
+    return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}_seed{seed + k}") for k in range(repeats)]
 
 
 def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings | None = None, *,
