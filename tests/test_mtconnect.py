@@ -23,7 +23,8 @@ from typer.testing import CliRunner
 
 from drivesense.cli import app
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.io.mtconnect import AgentError, parse_devices, parse_shdr, parse_streams, parse_timestamp
+from drivesense.io.mtconnect import (AgentError, MTConnectWarning, parse_devices, parse_shdr, parse_streams,
+                                     parse_timestamp)
 from drivesense.io.mtconnect_client import MTConnectClient, StreamLog
 from drivesense.io.mtconnect_resample import read_mtconnect, to_recording
 from drivesense.io import read_recording
@@ -123,6 +124,87 @@ def test_shdr_without_devices_recognises_multi_field_items(tmp_path):
     bad.write_text("2024-03-05T09:00:00Z|Xact|1.0|Yact|2.0|Zact\n")
     with pytest.raises(InvalidSignalError, match=r"line 1: value item 'Zact' needs 1 field"):
         parse_shdr(bad)
+
+
+def test_shdr_assets_are_kept_with_their_times_and_unknown_commands_warn_once(devices):
+    """An adapter's tool table: multi-line and one-line CuttingTool assets, out-of-order asset times,
+    removals, an update and two unknown commands (one warning, naming the first line)."""
+    with pytest.warns(MTConnectWarning) as caught:
+        rec = read_mtconnect(DATA / "tool_assets.shdr", devices)
+    assert len(caught) == 1
+    assert str(caught[0].message) == ("tool_assets.shdr, line 33: unknown SHDR command '@SET_TOOL_OFFSET@' skipped "
+                                      "(2 unknown command lines in all)")
+    assert rec.meta["start_time_utc"] == "2024-03-05T10:00:00.000000Z"   # asset times do not move the grid
+    assert rec.channels == ["x_table_position", "x_load", "spindle_speed"] and rec.fs == 20.0
+    np.testing.assert_allclose(rec["x_table_position"], 0.1 + 0.005 * rec.time, atol=1e-12)
+    mtc = rec.meta["mtconnect"]
+    assets = mtc["assets"]
+    assert [(a["asset_id"], a["tool_id"], a["serial_number"], a["time_utc"]) for a in assets] == [
+        ("T12.SN4711", "T12", "SN4711", "2024-03-05T09:12:30.000000Z"),      # sent after the removal, older
+        ("T7.SN0815", "T7", "SN0815", "2024-03-05T09:58:10.250000Z"),
+        ("T7.SN0816", "T7", "SN0816", "2024-03-05T10:00:00.320000Z")]       # the one-line form
+    t12 = assets[0]
+    assert t12["t"] == -2850.0 and t12["type"] == "CuttingTool" and t12["status"] == ["USED", "AVAILABLE"]
+    assert t12["program_tool_number"] == "12" and t12["program_tool_group"] == "10"
+    assert t12["tool_life"] == [
+        {"type": "MINUTES", "count_direction": "UP", "value": 12.5, "limit": 30.0, "initial": 0.0, "warning": 25.0},
+        {"type": "PART_COUNT", "count_direction": "DOWN", "value": 143.0, "limit": 0.0, "initial": 200.0,
+         "warning": None}]
+    assert assets[1]["status"] == ["EXPIRED"] and assets[1]["tool_life"][0]["value"] == 45.0
+    assert [(r["asset_id"], r["all"], r["type"], r["t"]) for r in mtc["asset_removals"]] == [
+        (None, True, "CuttingTool", 0.0001), ("T7.SN0815", False, None, 0.31)]
+    assert mtc["asset_updates"] == [{"t": 0.26, "time_utc": "2024-03-05T10:00:00.260000Z", "asset_id": "T12.SN4711",
+                                     "changes": {"ToolLife": "12.6"}}]
+    assert mtc["events"]["execution"] == [[0.0, "ACTIVE"], [0.4, "READY"]]
+    json.dumps(rec.meta, allow_nan=False)
+
+
+OKUMA_LIKE = """\
+2022-08-08T13:51:34.7167146Z|avail|AVAILABLE|X1actw|1039.897|p1CurrentTool|2206
+2022-08-08T13:51:34.7237196Z|@REMOVE_ALL_ASSETS@|CuttingTool
+2022-08-08T13:43:36.0810790Z|@ASSET@|123456.2201|CuttingTool|--multiline--ABCD
+<CuttingTool toolId="123456" serialNumber="2201" assetId="123456.2201"><Description /><CuttingToolLifeCycle>\
+<ToolLife type="PART_COUNT" countDirection="UP" initial="0" limit="0">0</ToolLife>\
+<ToolLife type="MINUTES" countDirection="UP" initial="0" limit="0">160</ToolLife>\
+<CutterStatus><Status>AVAILABLE</Status></CutterStatus><ProgramToolNumber>2201</ProgramToolNumber>\
+</CuttingToolLifeCycle></CuttingTool>
+--multiline--ABCD
+2022-08-08T10:33:04.9702571Z|@ASSET@|123456.20|CuttingTool|--multiline--ABCD
+<CuttingTool toolId="123456" serialNumber="20" assetId="123456.20"><CuttingToolLifeCycle>
+<ToolLife type="PART_COUNT" countDirection="UP" initial="3" limit="0">3</ToolLife>
+</CuttingToolLifeCycle></CuttingTool>
+--multiline--ABCD
+2022-08-08T13:51:37.2515150Z|X1actw|1040.5
+2022-08-08T13:51:41.4582058Z|@REMOVE_ASSET@|123456.20
+"""
+
+
+def test_shdr_okuma_style_assets_without_namespace():
+    """The shape of the MTConnect reference agent's Okuma demo log, which stopped at its first asset's XML."""
+    obs = parse_shdr("okuma.txt", text=OKUMA_LIKE)
+    assert [(o.kind, o.key) for o in obs] == [
+        ("EVENT", "avail"), ("SAMPLE", "X1actw"), ("SAMPLE", "p1CurrentTool"), ("ASSET_REMOVED", "*"),
+        ("ASSET", "123456.2201"), ("ASSET", "123456.20"), ("SAMPLE", "X1actw"), ("ASSET_REMOVED", "123456.20")]
+    tool = obs[4].value
+    assert (tool["tool_id"], tool["serial_number"], tool["status"]) == ("123456", "2201", ["AVAILABLE"])
+    assert [(life["type"], life["value"]) for life in tool["tool_life"]] == [("PART_COUNT", 0.0), ("MINUTES", 160.0)]
+    assert obs[5].time_us < obs[4].time_us < obs[3].time_us          # asset times run backwards: kept as sent
+    rec = to_recording(obs, source="okuma.txt", fs=1.0)
+    assert [a["serial_number"] for a in rec.meta["mtconnect"]["assets"]] == ["2201", "20"]
+
+
+def test_shdr_broken_or_unclosed_assets():
+    broken = "2024-03-05T10:00:00Z|@ASSET@|T1.1|CuttingTool|<CuttingTool toolId='T1'><oops></CuttingTool>\n"
+    with pytest.warns(MTConnectWarning, match=r"log.shdr, line 1 \(CuttingTool XML\).*kept without its XML fields"):
+        obs = parse_shdr("log.shdr", text=broken + "2024-03-05T10:00:00Z|Xact|1.0\n")
+    assert obs[0].value["asset_id"] == "T1.1" and "error" in obs[0].value and obs[1].value == 1.0
+    unclosed = "2024-03-05T10:00:00Z|Xact|1.0\n2024-03-05T10:00:01Z|@ASSET@|T1.1|CuttingTool|--multiline--X1\n<Cutt"
+    with pytest.raises(InvalidSignalError, match=r"log.shdr, line 2: asset 'T1.1'.* not closed by '--multiline--X1'"):
+        parse_shdr("log.shdr", text=unclosed)
+    doctype = ("2024-03-05T10:00:00Z|@ASSET@|T1.1|CuttingTool|--multiline--X1\n<!DOCTYPE x [<!ENTITY a 'b'>]>\n"
+               "<CuttingTool toolId='T1'/>\n--multiline--X1\n")
+    with pytest.warns(MTConnectWarning, match="DOCTYPE"):                # the hardened parser refuses entities
+        assert parse_shdr("log.shdr", text=doctype)[0].value["type"] == "CuttingTool"
 
 
 def test_timestamps_and_agent_errors():
@@ -297,3 +379,25 @@ def test_cli_probe_and_import(agent, tmp_path):
     assert read_recording(tmp_path / "live.nc").fs == 500.0
     res = runner.invoke(app, ["mtconnect", "import", str(DATA / "devices.xml"), "--out", str(tmp_path / "x.nc")])
     assert res.exit_code == 2 and "not MTConnectStreams" in res.output
+
+
+def test_cli_import_keeps_tool_assets_and_warns_once(tmp_path):
+    out = tmp_path / "tools.nc"
+    res = runner.invoke(app, ["mtconnect", "import", str(DATA / "tool_assets.shdr"), "--devices",
+                              str(DATA / "devices.xml"), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert res.output.count("warning:") == 1 and "line 33: unknown SHDR command '@SET_TOOL_OFFSET@'" in res.output
+    assert "assets: 3 sent (3 CuttingTool), 2 removal(s), 1 update(s)" in res.output
+    back = read_recording(out).meta["mtconnect"]
+    assert [a["serial_number"] for a in back["assets"]] == ["SN4711", "SN0815", "SN0816"]
+
+
+@pytest.mark.parametrize("args", [["probe", "ftp://host/x"], ["import", "ftp://host/x", "--out", "x.nc"],
+                                  ["import", str(DATA / "adapter.shdr"), "--devices", "file:///tmp/devices.xml",
+                                   "--out", "x.nc"]])
+def test_cli_refuses_unsupported_url_schemes_by_name(args):
+    res = runner.invoke(app, ["mtconnect", *args])
+    scheme = "file" if "file://" in " ".join(args) else "ftp"
+    assert res.exit_code == 2 and res.output.count("\n") == 1
+    assert f"unsupported URL scheme '{scheme}' (use http://, https:// or a file path)" in res.output
+    assert "file not found" not in res.output

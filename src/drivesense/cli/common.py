@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -13,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "write_json", "progress_bar", "accuracy_table", "read_trace",
-           "build_estimator", "save_recording"]
+           "build_estimator", "save_recording", "show_warnings"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -124,3 +126,26 @@ def save_recording(rec, out: Path, *, parents: bool = False) -> None:
     if parents:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
     write_recording(rec, out)
+
+
+@contextlib.contextmanager
+def show_warnings():
+    """Print the library's warnings raised inside as ``warning: ...`` lines on stderr (also when it fails).
+
+    Only ``UserWarning`` subclasses (drivesense's own: fallbacks, skipped input) are printed this way;
+    other warnings go to Python's usual handler.
+    """
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
+            try:
+                yield
+            finally:
+                caught = list(record)
+    finally:  # outside catch_warnings, so that showwarning is Python's again
+        for w in {str(w.message): w for w in caught}.values():
+            if issubclass(w.category, UserWarning):
+                warn(str(w.message))
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)

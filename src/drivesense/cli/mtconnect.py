@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, write_json
+from drivesense.cli.common import console, friendly, show_warnings, write_json
 
 __all__ = ["register", "mtconnect_app"]
 
@@ -17,8 +17,14 @@ mtconnect_app = typer.Typer(no_args_is_help=True,
                                  "a live agent into a recording.")
 
 
-def _is_url(text: str) -> bool:
-    return text.startswith(("http://", "https://"))
+def _devices(source: Optional[str], timeout: float):
+    """The Devices document of ``probe SOURCE`` or ``import --devices``: a file or an agent URL."""
+    from drivesense.io.mtconnect import parse_devices
+    from drivesense.io.mtconnect_client import MTConnectClient, is_agent_url
+
+    if source is None:
+        return None
+    return MTConnectClient(source, timeout=timeout).probe() if is_agent_url(source) else parse_devices(Path(source))
 
 
 @mtconnect_app.command("probe")
@@ -29,10 +35,7 @@ def probe(
     timeout: Annotated[float, typer.Option(help="HTTP timeout [s].")] = 10.0,
 ) -> None:
     """List the data items and the drivesense channel each maps to."""
-    from drivesense.io.mtconnect import parse_devices
-    from drivesense.io.mtconnect_client import MTConnectClient
-
-    model = MTConnectClient(source, timeout=timeout).probe() if _is_url(source) else parse_devices(Path(source))
+    model = _devices(source, timeout)
     rows = []
     for item in model.items:
         scale = item.scale()
@@ -58,8 +61,8 @@ def probe(
 def import_(
     source: Annotated[str, typer.Argument(help="Streams document (.xml), SHDR log, or agent URL.")],
     out: Annotated[Path, typer.Option("--out", help="Output recording: .nc (lossless) or .csv.")],
-    devices: Annotated[Optional[Path], typer.Option(help="Devices document (/probe) for channel names and units.")]
-    = None,
+    devices: Annotated[Optional[str], typer.Option(help="Devices document (/probe) file or agent URL, for channel "
+                                                        "names and units.")] = None,
     fs: Annotated[Optional[float], typer.Option(help="Output rate [Hz] (default: the densest reporting rate).")]
     = None,
     method: Annotated[str, typer.Option(help="Resampling: linear or hold (zero-order hold).")] = "linear",
@@ -69,19 +72,26 @@ def import_(
 ) -> None:
     """Resample MTConnect observations explicitly onto a uniform grid and save a recording."""
     from drivesense.cli.common import save_recording
-    from drivesense.io.mtconnect import parse_devices
-    from drivesense.io.mtconnect_client import MTConnectClient
+    from drivesense.io.mtconnect_client import MTConnectClient, is_agent_url
     from drivesense.io.mtconnect_resample import read_mtconnect
 
-    model = parse_devices(devices) if devices is not None else None
-    if _is_url(source):
+    url = is_agent_url(source)
+    model = _devices(devices, timeout)
+    if url:
         rec = MTConnectClient(source, timeout=timeout).collect(count=count, max_requests=max_requests, fs=fs,
                                                                method=method, devices=model)
     else:
-        rec = read_mtconnect(Path(source), model, fs=fs, method=method)
+        with show_warnings():
+            rec = read_mtconnect(Path(source), model, fs=fs, method=method)
     save_recording(rec, out)
     console.print(f"wrote {out}: {rec!r}", markup=False, highlight=False)
     console.print(rec.meta["provenance"][-1], markup=False, highlight=False)
+    mtc = rec.meta["mtconnect"]
+    if mtc.get("assets") or mtc.get("asset_removals"):
+        tools = sum(a["type"] == "CuttingTool" for a in mtc.get("assets", []))
+        console.print(f"assets: {len(mtc.get('assets', []))} sent ({tools} CuttingTool), "
+                      f"{len(mtc.get('asset_removals', []))} removal(s), {len(mtc.get('asset_updates', []))} "
+                      "update(s) (see meta mtconnect.assets)", markup=False, highlight=False)
 
 
 def register(root: typer.Typer) -> None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -34,10 +35,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidSignalError
+from .mtconnect_assets import read_asset_command
 from .xml_safe import XMLLimits, local_name, parse_bytes
 
-__all__ = ["DataItem", "DeviceModel", "Observation", "StreamsDocument", "AgentError", "parse_devices",
-           "parse_streams", "parse_shdr", "to_recording", "read_mtconnect", "parse_timestamp", "MTC_UNITS"]
+__all__ = ["DataItem", "DeviceModel", "Observation", "StreamsDocument", "AgentError", "MTConnectWarning",
+           "parse_devices", "parse_streams", "parse_shdr", "to_recording", "read_mtconnect", "parse_timestamp", "MTC_UNITS"]
 
 _REV = 2.0 * math.pi
 #: MTConnect unit -> (factor to SI, drivesense SI unit).
@@ -239,12 +241,15 @@ class Observation:
         dataItemId (Streams) or the SHDR key (name or id).
     time_us : int
         Timestamp, microseconds since 1970-01-01 UTC.
-    value : float, tuple of float, numpy.ndarray, str or None
+    value : float, tuple of float, numpy.ndarray, str, dict or None
         Number, vector (``PATH_POSITION``), time series, event text, condition
         level; None for ``UNAVAILABLE``.  Numbers are as the agent reports
-        them [the data item's units], not yet converted to SI.
+        them [the data item's units], not yet converted to SI.  An SHDR asset
+        is a dict (see :func:`~drivesense.io.mtconnect_assets.read_asset_command`).
     kind : str
-        ``SAMPLE``, ``TIME_SERIES``, ``EVENT``, ``MESSAGE``, ``CONDITION`` or ``ALARM``.
+        ``SAMPLE``, ``TIME_SERIES``, ``EVENT``, ``MESSAGE``, ``CONDITION`` or
+        ``ALARM``; from SHDR asset commands also ``ASSET``, ``ASSET_REMOVED``
+        (key ``*`` for ``@REMOVE_ALL_ASSETS@``) and ``ASSET_UPDATED``.
     sequence : int or None
         Agent sequence number (None in SHDR).
     extra : dict
@@ -288,6 +293,10 @@ class AgentError(InvalidSignalError):
     def __init__(self, message: str, code: str = "") -> None:
         super().__init__(message)
         self.code = code
+
+
+class MTConnectWarning(UserWarning):
+    """Something in an MTConnect document or SHDR log was skipped (the message names the line)."""
 
 
 def _raise_agent_error(root: Any, where: str) -> None:
@@ -423,7 +432,7 @@ def _load(source: str | Path | bytes) -> tuple[bytes, str]:
 
 def parse_shdr(source: str | Path, devices: DeviceModel | None = None, *, text: str | None = None
                ) -> list[Observation]:
-    """Read an SHDR adapter log: ``timestamp|key|value|key|value...`` lines.
+    """Read an SHDR adapter log: ``timestamp|key|value|key|value...`` lines, and its asset commands.
 
     Parameters
     ----------
@@ -442,13 +451,20 @@ def parse_shdr(source: str | Path, devices: DeviceModel | None = None, *, text: 
     Returns
     -------
     list of Observation
-        In file order; lines starting with ``*`` (protocol commands) and
-        ``@ASSET@`` lines are skipped.
+        In file order; lines starting with ``*`` (protocol comments) are
+        skipped.  ``@ASSET@`` (one line, or a ``--multiline--TAG`` block),
+        ``@REMOVE_ASSET@``, ``@REMOVE_ALL_ASSETS@`` and ``@UPDATE_ASSET@``
+        become ``ASSET*`` observations in file order at their own (possibly
+        out-of-order) times; a ``CuttingTool``'s identity and life counts are parsed from
+        its XML (:func:`~drivesense.io.mtconnect_assets.parse_cutting_tool`).
+        Other ``@...@`` commands are skipped with one
+        :class:`MTConnectWarning` naming the first such line.
 
     Raises
     ------
     InvalidSignalError
-        A line without a valid timestamp, or with a dangling key (naming the line).
+        A line without a valid timestamp, with a dangling key, or an asset
+        block that is never closed (naming the line).
     """
     where = Path(source).name
     if text is None:
@@ -457,17 +473,35 @@ def parse_shdr(source: str | Path, devices: DeviceModel | None = None, *, text: 
             raise FileNotFoundError(2, "SHDR file not found", str(path))
         text = path.read_text(encoding="utf-8", errors="replace")
     out: list[Observation] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        line = line.rstrip("\r\n")
+    lines = text.splitlines()
+    unknown: list[str] = []
+    broken: list[str] = []
+    i = 0
+    while i < len(lines):
+        line, at = lines[i], f"{where}, line {i + 1}"
+        i += 1
         if not line.strip() or line.startswith("*"):
             continue
         fields = line.split("|")
-        at = f"{where}, line {lineno}"
         t = parse_timestamp(fields[0], at)
         rest = fields[1:]
-        if rest and rest[0].startswith("@"):
+        if rest and rest[0].strip().startswith("@"):
+            got = read_asset_command(rest, lines, i, at)
+            if got is None:
+                unknown.append(f"{at}: unknown SHDR command {rest[0].strip()!r}")
+                continue
+            records, i = got
+            for kind, key, value, extra in records:
+                if isinstance(value, dict) and "error" in value:
+                    broken.append(value["error"])
+                out.append(Observation(key, t, value, kind, None, extra))
             continue
         out.extend(_shdr_fields(rest, t, devices, at))
+    for notes, what, such in ((unknown, " skipped", "unknown command lines"),
+                              (broken, "; the tool is kept without its XML fields", "broken CuttingTool assets")):
+        if notes:
+            more = f" ({len(notes)} {such} in all)" if len(notes) > 1 else ""
+            warnings.warn(notes[0] + what + more, MTConnectWarning, stacklevel=2)
     return out
 
 

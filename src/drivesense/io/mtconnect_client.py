@@ -13,6 +13,7 @@ URLs are fetched.
 
 from __future__ import annotations
 
+import re
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -26,7 +27,32 @@ from .mtconnect import AgentError, DeviceModel, Observation, StreamsDocument, pa
 from .mtconnect_resample import to_recording
 from .xml_safe import XMLLimits
 
-__all__ = ["MTConnectClient", "StreamLog"]
+__all__ = ["MTConnectClient", "StreamLog", "is_agent_url"]
+
+
+def is_agent_url(source: str) -> bool:
+    """Whether a FILE|URL argument is an agent URL (``http://``, ``https://``) rather than a file path.
+
+    Parameters
+    ----------
+    source : str
+        What the user gave.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    ConfigError
+        A URL of another scheme (``ftp://``, ``file://``...), named in the message.
+    """
+    scheme, sep, _ = str(source).partition("://")
+    if not sep or not re.fullmatch(r"[A-Za-z][A-Za-z0-9+.-]*", scheme):
+        return False
+    if scheme.lower() in ("http", "https"):
+        return True
+    raise ConfigError(f"{source}: unsupported URL scheme {scheme!r} (use http://, https:// or a file path)")
 
 
 @dataclass

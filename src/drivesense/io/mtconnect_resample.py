@@ -6,7 +6,8 @@ does it in the open: it picks (or is given) a rate, builds a grid from the
 latest first observation to the last observation, interpolates each channel
 linearly or holds its last value, bridges ``UNAVAILABLE`` stretches (listing
 them as gaps) and records all of it in the provenance.  Events, messages,
-alarms and conditions become time-stamped lists in ``meta["mtconnect"]``.
+alarms and conditions become time-stamped lists in ``meta["mtconnect"]``,
+as do the assets of an SHDR log (cutting tools, their removals and updates).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, SignalTooShortError
 from ..recording import Recording
 from .mtconnect import DeviceModel, Observation, snake_case, parse_devices, parse_shdr, parse_streams
+from .mtconnect_assets import ASSET_KINDS
 
 __all__ = ["to_recording", "read_mtconnect", "MAX_EVENTS", "MAX_SAMPLES"]
 
@@ -109,6 +111,26 @@ def _event_meta(events: dict[str, list], start_us: int) -> dict:
     return out
 
 
+def _asset_meta(assets: Sequence[Observation], start_us: int) -> dict:
+    """Assets, removals and updates in the order the adapter sent them (the order the agent applies them)."""
+    out: dict[str, list] = {"assets": [], "asset_removals": [], "asset_updates": []}
+    where = {"ASSET": "assets", "ASSET_REMOVED": "asset_removals", "ASSET_UPDATED": "asset_updates"}
+    for obs in assets:  # not sorted: an adapter clears its assets, then resends them with older times
+        entry: dict[str, Any] = {"t": round((obs.time_us - start_us) * 1e-6, 6), "time_utc": _iso(obs.time_us)}
+        if obs.kind == "ASSET":
+            entry.update(obs.value)
+        elif obs.kind == "ASSET_REMOVED":
+            entry.update({"asset_id": None if obs.extra.get("all") else obs.key, **obs.extra})
+        else:
+            entry.update({"asset_id": obs.key, "changes": obs.value})
+        out[where[obs.kind]].append(entry)
+    for key, entries in out.items():
+        if len(entries) > MAX_EVENTS:
+            out.setdefault("assets_truncated", {})[key] = len(entries)
+            out[key] = entries[-MAX_EVENTS:]
+    return out if assets else {}
+
+
 def to_recording(observations: Sequence[Observation], devices: DeviceModel | None = None, *,
                  fs: float | None = None, method: str = "linear", native: bool = False,
                  name: str | None = None, source: str = "mtconnect", extra_meta: dict | None = None
@@ -142,6 +164,11 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
     -------
     Recording
         t0 = 0 at the grid start (``meta["start_time_utc"]``); SI channels.
+        SHDR assets go to ``meta["mtconnect"]`` in the order they were sent
+        (their times may run backwards: each asset carries its own): ``assets``
+        (``t`` [s] from the grid start, ``time_utc``, ``asset_id``, ``type``
+        and a cutting tool's ``tool_id``, ``serial_number``, ``status``,
+        ``tool_life``...), ``asset_removals`` and ``asset_updates``.
 
     Raises
     ------
@@ -152,6 +179,8 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
     """
     if method not in ("linear", "hold"):
         raise ConfigError(f"method must be 'linear' or 'hold', got {method!r}")
+    assets = [o for o in observations if o.kind in ASSET_KINDS]
+    observations = [o for o in observations if o.kind not in ASSET_KINDS]
     series, info, events, skipped = _collect(observations, devices, native)
     if not series:
         raise InvalidSignalError(f"{source}: no numeric samples to resample ({len(observations)} observations, "
@@ -213,7 +242,7 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
                 spans.append([round((t_all[b] - start) * 1e-6, 6), round((end_us - start) * 1e-6, 6)])
             gaps[ch] = spans
     meta_mtc = {"data_items": {ch: info[ch] for ch in channels}, **_event_meta(events, start),
-                "gaps": gaps, "skipped": skipped, **(extra_meta or {})}
+                "gaps": gaps, "skipped": skipped, **_asset_meta(assets, start), **(extra_meta or {})}
     if devices and devices.devices:
         meta_mtc["device"] = devices.devices[0]
     meta = {"name": name or Path(str(source)).stem or "mtconnect", "source": "mtconnect",
