@@ -159,9 +159,9 @@ def test_what_the_data_cannot_determine_is_named(kwargs, error, text):
 
 def test_bad_inputs():
     recs = synthetic_air_moves()
-    with pytest.raises(ConfigError, match="motor constants unknown"):
+    with pytest.raises(ConfigError, match=r"motor constants unknown: .*give --km x=\.\.\.,y=\.\.\.,z=\.\.\. \[N/A\]"):
         run_identification([r.with_meta(motor_constants_n_per_a=None) for r in recs])
-    with pytest.raises(ConfigError, match="missing axis/axes z"):
+    with pytest.raises(ConfigError, match=r"\(--km\): missing axis/axes z"):
         run_identification(recs, motor_constants={"x": 1.0, "y": 1.0})
     with pytest.raises(MissingChannelError, match="z_acceleration"):
         run_identification([r.select(*[c for c in r.channels if c != "z_acceleration"]) for r in recs])

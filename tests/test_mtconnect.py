@@ -91,8 +91,10 @@ def test_hold_and_given_rate(devices):
     assert set(np.round(hold["x_load"], 4)) <= reported  # held values are reported values
     lin = read_mtconnect(DATA / "streams.xml", devices, fs=100.0)
     assert not set(np.round(lin["x_load"], 4)) <= reported
-    with pytest.raises(ConfigError, match="method must be"):
+    with pytest.raises(ConfigError, match="--method must be linear or hold"):
         read_mtconnect(DATA / "streams.xml", devices, method="cubic")
+    with pytest.raises(ConfigError, match="--fs must be a positive number of Hz"):
+        read_mtconnect(DATA / "streams.xml", devices, fs=-1.0)
 
 
 def test_shdr_log_with_devices_equals_the_streams(devices, from_streams):

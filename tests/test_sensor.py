@@ -83,7 +83,7 @@ def test_bad_calibration_input(pairs):
     rng = np.random.default_rng(0)
     with pytest.raises(IdentificationError, match="not coherent"):
         calibrate_sensor([(rng.normal(size=20000), rng.normal(size=20000))], fs=FS, nperseg=2048)
-    with pytest.raises(ConfigError, match="band"):
+    with pytest.raises(ConfigError, match=r"--band LOW:HIGH must satisfy .*got 100:20000"):   # the CLI option
         calibrate_sensor(pairs, band=(100.0, 20000.0), nperseg=2048)
     with pytest.raises(ConfigError, match="nperseg"):
         calibrate_sensor(pairs, nperseg=1001)

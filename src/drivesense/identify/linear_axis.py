@@ -18,7 +18,7 @@ Per axis, from NC traces of moves without cutting:
    stacked masses of Eq. 8-10.
 5. **Presliding distance** (beyond the paper) -- with steps 1-4 fixed, the
    distance ``x_pre`` of the Dahl friction state
-   (:func:`~drivesense.machine.linear_motor.presliding_direction`) is the
+   (:func:`~drivesense.machine.presliding.presliding_direction`) is the
    bounded scalar minimiser of the Eq. 2 residual over every sample of the
    air moves: the starts and reversals of the slow moves determine it, and
    the standing axis's micro-motion while the others move.  When the moves do
@@ -329,14 +329,15 @@ def _motor_constants(recordings: Sequence[Recording], given) -> dict:
     if given is not None:
         bad = [a for a in AXES if a not in given]
         if bad:
-            raise ConfigError(f"motor_constants: missing axis/axes {', '.join(bad)} (N/A per axis x, y, z)")
+            raise ConfigError(f"motor constants (--km): missing axis/axes {', '.join(bad)} (give --km x=...,y=...,z=... "
+                              "in N/A)")
         return {a: float(given[a]) for a in AXES}
     for rec in recordings:
         km = rec.meta.get("motor_constants_n_per_a")
         if isinstance(km, dict) and all(a in km for a in AXES):
             return {a: float(km[a]) for a in AXES}
-    raise ConfigError("motor constants unknown: give motor_constants={'x': K_m, 'y': ..., 'z': ...} [N/A] "
-                      "(catalogue values; air moves cannot determine them)")
+    raise ConfigError("motor constants unknown: the traces carry none in their metadata; give --km x=...,y=...,z=... "
+                      "[N/A] (catalogue values; air moves cannot determine them)")
 
 
 def _axis_data(recordings: Sequence[Recording], ax: str, km: float) -> list[dict]:

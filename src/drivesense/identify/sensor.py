@@ -67,7 +67,8 @@ def _pairs(pairs, fs, sensor_channel, reference_channel):
 def _check_band(band, fs) -> tuple[float, float]:
     lo, hi = (float(b) for b in band)
     if not (0 < lo < hi < 0.5 * fs):
-        raise ConfigError(f"'band' must satisfy 0 < low < high < fs/2 = {0.5 * fs:g} Hz, got {band!r}")
+        raise ConfigError(f"--band LOW:HIGH must satisfy 0 < LOW < HIGH < fs/2 = {0.5 * fs:g} Hz (half the "
+                          f"recordings' rate), got {lo:g}:{hi:g}")
     return lo, hi
 
 

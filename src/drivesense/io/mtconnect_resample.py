@@ -178,7 +178,7 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
         The observations span less than two samples at `fs`.
     """
     if method not in ("linear", "hold"):
-        raise ConfigError(f"method must be 'linear' or 'hold', got {method!r}")
+        raise ConfigError(f"--method must be linear or hold (zero-order hold), got {method!r}")
     assets = [o for o in observations if o.kind in ASSET_KINDS]
     observations = [o for o in observations if o.kind not in ASSET_KINDS]
     series, info, events, skipped = _collect(observations, devices, native)
@@ -205,13 +205,13 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
             if d.size:
                 rates.append(1e6 / float(np.median(d)))
         if not rates:
-            raise SignalTooShortError(f"{source}: one observation per data item; give fs to resample")
+            raise SignalTooShortError(f"{source}: one observation per data item; give the output rate with --fs HZ")
         fs = float(f"{max(rates):.3g}")
         how = "the densest reporting rate, median"
     else:
         fs = float(fs)
         if not (math.isfinite(fs) and fs > 0):
-            raise ConfigError(f"fs must be a positive number of Hz, got {fs!r}")
+            raise ConfigError(f"--fs must be a positive number of Hz, got {fs!r}")
         how = "given"
     start = max(int(t[0]) for t, _ in valid.values())
     stop = max(int(t[-1]) for t, _ in valid.values())
@@ -220,7 +220,7 @@ def to_recording(observations: Sequence[Observation], devices: DeviceModel | Non
         raise SignalTooShortError(f"{source}: the observations overlap for {(stop - start) * 1e-6:g} s, less than "
                                   f"two samples at {fs:g} Hz")
     if n > MAX_SAMPLES:
-        raise InvalidSignalError(f"{source}: {n} samples at {fs:g} Hz; choose a lower fs")
+        raise InvalidSignalError(f"{source}: {n} samples at {fs:g} Hz; choose a lower --fs")
     grid = np.arange(n) / fs
     channels, units, gaps = {}, {}, {}
     for ch, (t, v) in valid.items():
