@@ -18,8 +18,9 @@ from drivesense.bench.linear_axis import identification_table, session_truth
 from drivesense.cli import app
 from drivesense.errors import ConfigError, CoverageError, MissingChannelError
 from drivesense.estimate.model_based import ModelBased
-from drivesense.identify.linear_axis import (constant_velocity_segments, direction_averaged, fit_cogging_table,
-                                             fit_masses, fit_restoring, fit_stribeck, run_identification)
+from drivesense.identify.linear_axis import (IdentificationWarning, constant_velocity_segments, direction_averaged,
+                                             fit_cogging_table, fit_masses, fit_restoring, fit_stribeck,
+                                             run_identification)
 from drivesense.io.axes_file import read_axes_file
 from drivesense.machine.linear_motor import AXES, linear_machine_model
 from drivesense.recording import Recording
@@ -157,6 +158,17 @@ def test_what_the_data_cannot_determine_is_named(kwargs, error, text):
         run_identification(synthetic_air_moves(**kwargs))
 
 
+def test_given_motor_constants_that_disagree_with_the_traces_warn():
+    recs = synthetic_air_moves()          # they carry K_m x 180, y 260, z 140 N/A
+    with pytest.warns(IdentificationWarning) as caught:
+        rep = run_identification(recs, motor_constants={"x": 130.0, "y": 260.0, "z": 140.0}, presliding=False)
+    assert [str(w.message) for w in caught] == [
+        "axis 'x': the given motor constant --km x=130 N/A disagrees with the 180 N/A the trace 'synthetic_x' "
+        "carries in its metadata (and 2 more trace(s)); using the given 130 N/A (leave --km out to use the "
+        "traces' constants)"]
+    assert rep.model.x.K_m == 130.0 and rep.model.y.K_m == 260.0
+
+
 def test_bad_inputs():
     recs = synthetic_air_moves()
     with pytest.raises(ConfigError, match=r"motor constants unknown: .*give --km x=\.\.\.,y=\.\.\.,z=\.\.\. \[N/A\]"):
@@ -211,5 +223,11 @@ def test_cli_identify_linear(air, tmp_path):
     res = runner.invoke(app, ["identify", "linear", *map(str, paths), "--out", str(tmp_path / "A3.toml"),
                               "--km", "x=180,y=260"])
     assert res.exit_code == 2 and "--km lacks axis/axes z" in res.output
+    res = runner.invoke(app, ["identify", "linear", *map(str, paths), "--out", str(tmp_path / "A4.toml"),
+                              "--km", "x=180,y=150,z=140", "--no-presliding"])   # the README's old y=150
+    assert res.exit_code == 0, res.output
+    assert res.output.count("warning:") == 1 and "axis 'y': the given motor constant --km y=150 N/A disagrees " \
+        "with the 260 N/A the trace 'air_x_travel'" in res.output.replace("\n", " ")
+    assert read_axes_file(tmp_path / "A4.toml").y.K_m == 150.0
     assert not (tmp_path / "A2.toml").exists() and not (tmp_path / "A3.toml").exists()
     assert math.isfinite(model.z.m)

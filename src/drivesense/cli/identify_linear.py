@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, read_trace, write_json
+from drivesense.cli.common import console, friendly, read_trace, show_warnings, write_json
 
 __all__ = ["register", "parse_motor_constants", "estimate_model"]
 
@@ -52,8 +52,9 @@ def identify_linear(
     from drivesense.io.axes_file import write_axes_file
 
     recs = [read_trace(p) for p in air_moves]
-    report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,
-                                pole_pitch=pole_pitch, table_size=table_size, presliding=presliding)
+    with show_warnings():
+        report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,
+                                    pole_pitch=pole_pitch, table_size=table_size, presliding=presliding)
     model = report.model
     write_axes_file(out, model, header=f"identified by the four-step method from {len(recs)} air move(s)")
     stacked = model.stacked_masses()
@@ -102,7 +103,8 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     force = est.estimate(rec)
     write_csv(force, out)
     info: dict = {"method": est.name, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
-                  "latency_s": force.meta["latency_s"], "output": str(out), "force_n": {}, "score_vs_reference": {}}
+                  "latency_s": force.meta["latency_s"], "sign": force.meta["sign"], "output": str(out),
+                  "force_n": {}, "score_vs_reference": {}, "warnings": []}
     table = Table(title=f"{est.name} estimate of {trace.name}", show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the trace's declared delay)")

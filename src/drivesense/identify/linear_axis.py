@@ -31,7 +31,9 @@ argument or from the traces' ``meta["motor_constants_n_per_a"]``.
 
 from __future__ import annotations
 
+import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -43,7 +45,7 @@ from drivesense.identify.presliding import fit_presliding
 from drivesense.machine.linear_motor import AXES, LinearMotorAxis, ThreeAxisModel
 from drivesense.recording import Recording
 
-__all__ = ["IdentificationReport", "identify_axes", "run_identification", "constant_velocity_segments",
+__all__ = ["IdentificationReport", "IdentificationWarning", "identify_axes", "run_identification", "constant_velocity_segments",
            "direction_averaged", "fit_restoring", "fit_cogging_table", "fit_stribeck", "fit_masses", "fit_presliding",
            "STACKING"]
 
@@ -325,13 +327,31 @@ class IdentificationReport:
         return {"model": self.model.to_dict(), "steps": self.steps, "seconds": self.seconds}
 
 
+class IdentificationWarning(UserWarning):
+    """The identification went on with something the user should know: a fallback, or a given value that
+    disagrees with the data."""
+
+
 def _motor_constants(recordings: Sequence[Recording], given) -> dict:
     if given is not None:
         bad = [a for a in AXES if a not in given]
         if bad:
             raise ConfigError(f"motor constants (--km): missing axis/axes {', '.join(bad)} (give --km x=...,y=...,z=... "
                               "in N/A)")
-        return {a: float(given[a]) for a in AXES}
+        kms = {a: float(given[a]) for a in AXES}
+        for a in AXES:
+            carried = [(rec.name, float(rec.meta["motor_constants_n_per_a"][a])) for rec in recordings
+                       if isinstance(rec.meta.get("motor_constants_n_per_a"), dict)
+                       and isinstance(rec.meta["motor_constants_n_per_a"].get(a), (int, float))]
+            other = [(name, km) for name, km in carried if not math.isclose(km, kms[a], rel_tol=1e-6)]
+            if other:
+                name, km = other[0]
+                warnings.warn(f"axis '{a}': the given motor constant --km {a}={kms[a]:g} N/A disagrees with the "
+                              f"{km:g} N/A the trace '{name}' carries in its metadata"
+                              + (f" (and {len(other) - 1} more trace(s))" if len(other) > 1 else "")
+                              + f"; using the given {kms[a]:g} N/A (leave --km out to use the traces' constants)",
+                              IdentificationWarning, stacklevel=3)
+        return kms
     for rec in recordings:
         km = rec.meta.get("motor_constants_n_per_a")
         if isinstance(km, dict) and all(a in km for a in AXES):
@@ -423,6 +443,8 @@ def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict 
         pole pitch, at 4 or more speeds, and accelerated moves.
     motor_constants : dict of str to float, optional
         ``K_m`` per axis [N/A]; default: the traces' ``meta["motor_constants_n_per_a"]``.
+        A given constant that disagrees with one a trace carries is used, with
+        an :class:`IdentificationWarning` naming the axis and both values.
     pole_pitch : float
         Pole pitch of the motors [m].
     table_size : int
