@@ -208,3 +208,54 @@ def test_friction_map_command(work):
     info = json.loads((work / "fm.json").read_text())
     assert info["runs"] == 2 and info["bins"] > 100 and info["repeatability_rms_n"] >= 0
     assert info["dominant_wavelengths"] and (work / "fm.png").exists()
+
+
+# ------------------------------------------------------- first try: estimate without a reference or compensation
+@pytest.fixture(scope="module")
+def no_reference(work) -> Path:
+    """The feed cut without its reference force (a real trace has none)."""
+    path = work / "feed_noref.nc"
+    rec = read_recording(work / "feed.nc")
+    write_recording(rec.select("x_current_ref", "x_motor_angle", "x_table_position", "spindle_speed"), path)
+    return path
+
+
+def test_estimate_plot_without_reference_centres_a_few_tooth_periods_and_takes_a_window(work, no_reference):
+    res = invoke("estimate", no_reference, "--axis", work / "axis.toml", "--tare", "0.5:1.1", "--out",
+                 work / "nr.csv", "--plot", work / "nr.png", "--json", work / "nr.json")
+    assert res.exit_code == 0, res.output
+    info = json.loads((work / "nr.json").read_text())
+    a, b = info["plot_window_s"]
+    tooth = 60 / 1000 / 2                      # feed_r6_S1000: 1000 min^-1, two flutes
+    assert b - a == pytest.approx(5 * tooth) and 1.2 < a < b < 2.5    # in the cut (contact at 1.2 s)
+    assert (work / "nr.png").stat().st_size > 10_000
+    res = invoke("estimate", no_reference, "--axis", work / "axis.toml", "--tare", "0.5:1.1", "--out",
+                 work / "nr.csv", "--plot", work / "nr.png", "--plot-window", "1.5:1.6", "--json", work / "nr.json")
+    assert res.exit_code == 0, res.output
+    assert json.loads((work / "nr.json").read_text())["plot_window_s"] == [1.5, 1.6]
+    assert "--plot-window" in _bad(work, no_reference, "--plot", work / "x.png", "--plot-window", "7:8")
+    assert "--plot-window" in _bad(work, no_reference, "--plot", work / "x.png", "--plot-window", "1.6:1.5")
+    assert "give --plot" in _bad(work, no_reference, "--plot-window", "1.5:1.6")
+
+
+def test_estimate_without_compensation_warns_and_says_so_in_the_json(work, no_reference):
+    res = invoke("estimate", no_reference, "--axis", work / "axis.toml", "--out", work / "nc.csv",
+                 "--json", work / "nc.json")
+    assert res.exit_code == 0, res.output
+    warning = next(line for line in res.output.splitlines() if line.startswith("warning:"))
+    assert "friction" in warning and "--idle" in warning and "--tare START:END" in warning
+    info = json.loads((work / "nc.json").read_text())
+    assert info["compensation"] == "none" and len(info["warnings"]) == 1 and "--idle" in info["warnings"][0]
+    res = invoke("estimate", no_reference, "--axis", work / "axis.toml", "--tare", "0.5:1.1", "--out",
+                 work / "nc.csv", "--json", work / "nc.json")
+    assert res.exit_code == 0 and "warning:" not in res.output
+    assert json.loads((work / "nc.json").read_text())["warnings"] == []
+
+
+def test_estimate_output_carries_the_sign_convention(work):
+    res = invoke("estimate", work / "cross.csv", "--axis", work / "axis.toml", "--tare", "0.5:1.1",
+                 "--out", work / "sg.csv", "--json", work / "sg.json")
+    assert res.exit_code == 0, res.output
+    sign = "force on the workpiece (table) along +axis"
+    assert json.loads((work / "sg.json").read_text())["sign"] == sign
+    assert read_csv(work / "sg.csv").meta["sign"] == sign

@@ -131,7 +131,7 @@ def _trace_wavelength():
 
 
 FIGURES = {
-    "plot_estimates": (_estimates, (1100, 770)),
+    "plot_estimates": (_estimates, (1100, 990)),
     "plot_force_estimate": (_force_estimate, (990, 924)),
     "plot_pocket_estimate": (_pocket_estimate, (990, 638)),
     "plot_friction_maps": (_friction_maps, (1210, 704)),
@@ -316,3 +316,32 @@ def test_identify_monitor_bench_hold_no_plotting_code():
         assert not [d for d in defs if d.startswith("plot_")], path
         names = set(_imports(path, parts, top_level=True)) if parts[0] == "bench" else set(_imports(path, parts))
         assert not [n for n in names if n == "drivesense.plot" or n.startswith("drivesense.plot.")], path
+
+
+def test_estimates_without_a_reference_draw_no_truth_and_show_the_whole_trace():
+    """Without a reference force the estimate used to be drawn as 'truth (filtered)' over the last 0.1 s only."""
+    trace, est = _force_recordings()
+    fig = ds_plot.plot_estimates(None, {"vibration": est}, channel="force_x", zoom=(1.0, 1.2))
+    overview, close, spectrum = fig.axes
+    labels = [line.get_label() for ax in fig.axes for line in ax.get_lines()]
+    assert labels == ["vibration"] * 3
+    assert overview.get_lines()[0].get_xdata().size == est.n_samples           # the whole trace
+    assert close.get_lines()[0].get_xdata().min() >= 1.0 - 0.002 - 1e-9        # the close-up asked for
+    assert close.get_lines()[0].get_xdata().max() < 1.2
+    with_truth = ds_plot.plot_estimates(trace, {"vibration": est}, channel="force_x")
+    assert "truth (filtered)" in [line.get_label() for line in with_truth.axes[1].get_lines()]
+
+
+def test_default_close_up_is_a_few_tooth_periods_in_the_middle_of_the_cut():
+    from drivesense.plot.estimates import cut_zoom_window
+
+    fs, n = 1000.0, 4000
+    spindle = Recording.from_arrays({"spindle_speed": np.full(n, 3000 * 2 * np.pi / 60)}, fs=fs,
+                                    meta={"tool": {"flutes": 4}, "t_contact": 2.0})
+    a, b = cut_zoom_window(spindle, (1.0, 4.0))
+    assert b - a == pytest.approx(5 * 60 / 3000 / 4) and (a + b) / 2 == pytest.approx(3.0)
+    from_meta = Recording.from_arrays({"force_x": np.zeros(n)}, fs=fs, meta={"n_rpm": 6000.0})
+    a, b = cut_zoom_window(from_meta, (0.0, 4.0))
+    assert b - a == pytest.approx(2.5 * 60 / 6000) and (a + b) / 2 == pytest.approx(2.0)
+    none = Recording.from_arrays({"force_x": np.zeros(n)}, fs=fs)
+    assert cut_zoom_window(none) == pytest.approx((1.95, 2.05))

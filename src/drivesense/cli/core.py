@@ -7,10 +7,11 @@ from typing import Annotated, Optional
 
 import typer
 from rich import box
+from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (accuracy_table, build_estimator, console, friendly, progress_bar, read_trace,
-                                   save_recording, write_json)
+                                   save_recording, warn, write_json)
 
 __all__ = ["register"]
 
@@ -97,16 +98,27 @@ def simulate(
 
 
 # ------------------------------------------------------------------ estimate
-def _parse_window(text: str) -> tuple[float, float]:
+def _parse_window(text: str, option: str = "--tare") -> tuple[float, float]:
+    """``START:END`` [s] of a CLI option; ConfigError naming `option`."""
+    import math
+
     from drivesense.errors import ConfigError
 
     try:
         a, b = (float(v) for v in text.split(":"))
     except ValueError:
-        raise ConfigError(f"--tare {text!r}: expected START:END in seconds, e.g. 0.5:1.4") from None
+        raise ConfigError(f"{option} {text!r}: expected START:END in seconds, e.g. 0.5:1.4") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(f"{option} {text!r}: START and END must be finite numbers of seconds")
     if not b > a:
-        raise ConfigError(f"--tare {text!r}: END must be after START")
+        raise ConfigError(f"{option} {text!r}: END must be after START")
     return a, b
+
+
+#: What an estimate without --idle or --tare means, and what to add.
+_NO_COMPENSATION = ("no friction compensation (neither --idle nor --tare): friction and offsets are not removed, "
+                    "so the estimate reads them as process force; add --idle IDLE.csv runs (the cutting trajectory "
+                    "without cutting) or, for an axis that stands, --tare START:END [s] before the cut")
 
 
 @app.command()
@@ -120,7 +132,11 @@ def estimate(
     idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
     tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
-    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the estimate (and reference, if any).")] = None,
+    plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the estimate (and reference, if any): the "
+                                                      "whole trace, a close-up and the spectrum.")] = None,
+    plot_window: Annotated[Optional[str], typer.Option(
+        "--plot-window", help="START:END [s] of the plot's close-up (default: a few tooth periods in the middle of "
+                              "the cut, from the spindle speed if the trace has it; else 0.1 s).")] = None,
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
     axes_file: Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")] = None,
     model_dir: Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")] = None,
@@ -131,17 +147,26 @@ def estimate(
 
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
+    zoom = _parse_window(plot_window, "--plot-window") if plot_window is not None else None
+    if zoom is not None and plot is None:
+        raise ConfigError("--plot-window sets the close-up of --plot PNG: give --plot too")
     if est.drive != "ballscrew":
         from drivesense.cli.identify_linear import estimate_model
 
         if idle or tare:
             raise ConfigError(f"--method {method} takes no --idle/--tare (it reads a 3-axis NC trace)")
+        if zoom is not None:
+            raise ConfigError(f"--plot-window applies to the ball-screw methods; --method {method} plots the "
+                              "whole trace per axis")
         return estimate_model(trace, est, out, json_path, plot)
     signal = est.signal
     rec = read_trace(trace, axis_name)
     if idle and tare:
         raise ConfigError("give either --idle runs or --tare, not both")
-    info: dict = {"method": method, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples}
+    if zoom is not None and not (zoom[0] < rec.t0 + rec.duration and zoom[1] > rec.t0):
+        raise ConfigError(f"--plot-window {plot_window!r} lies outside the trace ({rec.t0:g} to "
+                          f"{rec.t0 + rec.duration:g} s)")
+    info: dict = {"method": method, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples, "warnings": []}
     if idle:
         est.fit([read_trace(p, axis_name) for p in idle])
         info["compensation"] = "friction map"
@@ -151,10 +176,12 @@ def estimate(
         info["tare_n"] = est.tare(rec, *_parse_window(tare))
     else:
         info["compensation"] = "none"
+        info["warnings"].append(_NO_COMPENSATION)
+        warn(_NO_COMPENSATION)
     force = est.estimate(rec)
     write_csv(force, out)
     f = force[est.output_channel]
-    info.update({"latency_s": force.meta["latency_s"], "output": str(out),
+    info.update({"latency_s": force.meta["latency_s"], "sign": force.meta["sign"], "output": str(out),
                  "force_n": {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
                              "std": float(f.std())}})
     if est.output_channel in rec.channels:
@@ -168,17 +195,23 @@ def estimate(
     if plot:
         from drivesense.estimate.design import lowpass_sos
         from drivesense.plot import plot_estimates, save_figure
+        from drivesense.plot.estimates import cut_zoom_window
 
-        truth = rec if est.output_channel in rec.channels else force
+        # without a reference force the estimate is drawn alone, never as the truth
+        truth = rec if est.output_channel in rec.channels else None
+        window = (rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration)
+        zoom = zoom or cut_zoom_window(rec, tuple(rec.meta.get("score_window", window)))
         fig = plot_estimates(truth, {method: force}, channel=est.output_channel, sos=lowpass_sos(signal, rec.fs),
-                             window=(rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration),
-                             max_freq=min(1.5 * signal.lpf_hz, 0.5 * rec.fs), title=f"{method} estimate: {trace.name}")
+                             window=window, zoom=zoom, max_freq=min(1.5 * signal.lpf_hz, 0.5 * rec.fs),
+                             title=f"{method} estimate: {trace.name}")
         save_figure(fig, plot)
         info["plot"] = str(plot)
+        info["plot_window_s"] = [float(zoom[0]), float(zoom[1])]
     table = Table(title=f"{method} estimate of {trace.name}", show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     table.add_row("compensation", info["compensation"] + (f" ({info['tare_n']:.2f} N)" if "tare_n" in info else ""))
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms")
+    table.add_row("sign", escape(info["sign"]))
     table.add_row(f"{est.output_channel} mean / min / max",
                   f"{f.mean():.2f} / {f.min():.2f} / {f.max():.2f} N")
     if "score_vs_reference" in info:
