@@ -14,8 +14,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-__all__ = ["console", "err_console", "friendly", "warn", "write_json", "progress_bar", "accuracy_table", "read_trace",
-           "build_estimator", "save_recording", "show_warnings"]
+__all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
+           "read_trace", "build_estimator", "save_recording", "show_warnings"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -41,6 +41,16 @@ def friendly(fn):
 def warn(text: str) -> None:
     """One yellow ``warning: ...`` line on stderr (the text is printed as is: no markup)."""
     err_console.print(f"[bold yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True)
+
+
+def key_column(table: Table, header: str, values, **kwargs) -> None:
+    """Add a column that is never truncated: at least as wide as its longest value, no wrapping, folded if need be.
+
+    Key columns (scenario, channel, state, tool names) must survive 80-column terminals and piped output;
+    the other columns wrap around them.
+    """
+    width = max((len(str(v)) for v in values), default=0)
+    table.add_column(header, no_wrap=True, overflow="fold", min_width=max(width, 1), **kwargs)
 
 
 def write_json(path: Optional[Path], payload: dict) -> None:
@@ -130,22 +140,17 @@ def save_recording(rec, out: Path, *, parents: bool = False) -> None:
 
 @contextlib.contextmanager
 def show_warnings():
-    """Print the library's warnings raised inside as ``warning: ...`` lines on stderr (also when it fails).
+    """Print the library's warnings raised inside as ``warning: ...`` lines on stderr, once each.
 
     Only ``UserWarning`` subclasses (drivesense's own: fallbacks, skipped input) are printed this way;
-    other warnings go to Python's usual handler.
+    other warnings go to Python's usual handler.  When the block fails, its error stands alone (the
+    ``friendly`` one-line message): the warnings of a run that produced nothing are dropped.
     """
-    caught: list = []
-    try:
-        with warnings.catch_warnings(record=True) as record:
-            warnings.simplefilter("always")
-            try:
-                yield
-            finally:
-                caught = list(record)
-    finally:  # outside catch_warnings, so that showwarning is Python's again
-        for w in {str(w.message): w for w in caught}.values():
-            if issubclass(w.category, UserWarning):
-                warn(str(w.message))
-            else:
-                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        yield
+    for w in {str(w.message): w for w in record}.values():  # outside catch_warnings: Python's showwarning again
+        if issubclass(w.category, UserWarning):
+            warn(str(w.message))
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)

@@ -69,32 +69,59 @@ def demo(
 @friendly
 def simulate(
     scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
-    out: Annotated[Optional[Path], typer.Option("--out", help="Output .nc (lossless) or .csv.")] = None,
-    list_: Annotated[bool, typer.Option("--list", help="List the scenarios.")] = False,
+    out: Annotated[Optional[Path], typer.Option("--out", help="Output .nc (lossless) or .csv; for air_moves a "
+                                                              "folder (one .nc per move).")] = None,
+    list_: Annotated[bool, typer.Option("--list", help="List the scenarios, each with a one-line description.")] = False,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     ideal: Annotated[bool, typer.Option(help="Use exactly the estimators' model (no friction, noise...).")] = False,
+    ap: Annotated[Optional[float], typer.Option("--ap", help="Linear-machine processes: axial depth of cut [mm] "
+                                                             "(default 2).")] = None,
+    ae: Annotated[Optional[float], typer.Option("--ae", help="Linear-machine processes: radial depth of cut [mm] "
+                                                             "(default 5; grooves: the tool diameter).")] = None,
+    vf: Annotated[Optional[float], typer.Option("--vf", help="Linear-machine processes: feed speed [mm/min] "
+                                                             "(default 500).")] = None,
+    rpm: Annotated[Optional[float], typer.Option("--rpm", help="Linear-machine processes: spindle speed [min^-1] "
+                                                               "(default 4500).")] = None,
 ) -> None:
-    """Simulate one scenario to a file: drive signals plus the true force."""
-    from drivesense.errors import ConfigError
-    from drivesense.sim.scenarios import ScenarioSettings, condition_by_name, scenario_names, simulate_cut, simulate_idle
+    """Simulate one scenario to a file: drive signals plus the true force (ball-screw stage or linear-motor machine)."""
+    from dataclasses import replace
 
+    from drivesense.cli.common import key_column
+    from drivesense.errors import ConfigError
+    from drivesense.sim.catalog import AIR_MOVES, ProcessParameters, describe_scenarios, is_process, simulate_scenario
+
+    given = {"--ap": ap, "--ae": ae, "--vf": vf, "--rpm": rpm}
+    params = None
+    if any(v is not None for v in given.values()):
+        params = replace(ProcessParameters(), **{k: v * f for (k, f), v in zip(
+            (("a_p", 1e-3), ("a_e", 1e-3), ("v_f", 1 / 60e3), ("n", 1.0)), given.values()) if v is not None})
     if list_:
-        for name in scenario_names():
-            console.print(name)
+        described = describe_scenarios()
+        table = Table(title="drivesense simulate SCENARIO --out FILE", box=box.SIMPLE,
+                      caption="ball screw: 10 kHz; linear machine: 250 Hz NC trace; cuts carry the true force. "
+                              f"Processes at {(params or ProcessParameters()).describe()} (--ap, --ae, --vf, --rpm)")
+        key_column(table, "scenario", described)
+        table.add_column("what it simulates", overflow="fold")
+        for name, line in described.items():
+            table.add_row(escape(name), escape(line))
+        console.print(table)
         return
     if scenario is None or out is None:
         raise ConfigError("give a SCENARIO and --out FILE (or --list)")
-    settings = ScenarioSettings().as_ideal() if ideal else ScenarioSettings()
-    if scenario.startswith("frf_"):
-        from drivesense.sim.scenarios import simulate_frf_excitation
-
-        rec = simulate_frf_excitation(scenario[4:], settings, seed=seed)
-    else:
-        cond, is_idle = condition_by_name(scenario)
-        rec = (simulate_idle(cond, settings, repeats=1, seed=seed)[0] if is_idle
-               else simulate_cut(cond, settings, seed=seed))
-    save_recording(rec, out)
-    console.print(f"wrote {out}: {rec!r}", markup=False)
+    if params is not None and not is_process(scenario):
+        raise ConfigError(f"{', '.join(k for k, v in given.items() if v is not None)}: cutting parameters of the "
+                          f"linear machine's processes (groove_*, side_*, pocket_ccw, ramp_-y+z), not of {scenario!r}")
+    if scenario == AIR_MOVES and out.suffix.lower() in (".nc", ".csv"):
+        raise ConfigError(f"{AIR_MOVES} writes 9 recordings: give --out a folder (one .nc file per move), "
+                          f"not '{out}'")
+    recs = simulate_scenario(scenario, seed=seed, ideal=ideal, params=params)
+    if scenario == AIR_MOVES:
+        for rec in recs:
+            save_recording(rec, out / f"{rec.name}.nc", parents=True)
+        console.print(f"wrote {len(recs)} air moves to {out}/: {', '.join(r.name for r in recs)}", markup=False)
+        return
+    save_recording(recs[0], out)
+    console.print(f"wrote {out}: {recs[0]!r}", markup=False)
 
 
 # ------------------------------------------------------------------ estimate
