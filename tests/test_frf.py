@@ -66,6 +66,17 @@ def test_band_without_low_frequencies_cannot_determine_mass():
         fit_frf(_analytic(300.0, 2000.0), K_t=AXIS.K_t, lead=AXIS.lead)
 
 
+def test_band_and_length_messages_name_the_cli_options():
+    with pytest.raises(IdentificationError, match=r"raise --fmax / the excitation band"):
+        fit_frf(_analytic(5.0, 40.0), K_t=AXIS.K_t, lead=AXIS.lead)
+    with pytest.raises(IdentificationError, match=r"lower --fmin / the excitation band"):
+        fit_frf(_analytic(300.0, 2000.0), K_t=AXIS.K_t, lead=AXIS.lead)
+    short = ds.Recording.from_arrays({f"x_{c}": np.zeros(1000) for c in ("current_ref", "motor_angle",
+                                                                        "table_position")}, fs=1e4)
+    with pytest.raises(ds.errors.InvalidSignalError, match=r"record longer or lower --nperseg"):
+        measure_frf(short, K_t=AXIS.K_t, lead=AXIS.lead)
+
+
 def test_unknown_fixed_parameter():
     with pytest.raises(ConfigError, match="Kt"):
         fit_frf(_analytic(), K_t=AXIS.K_t, lead=AXIS.lead, fixed={"Kt": 1.0})
@@ -145,3 +156,18 @@ def test_cli_identify_frf_bad_fix(tmp_path, chirp_trace, fix, expect):
     res = CliRunner().invoke(app, ["identify", "frf", str(tmp_path / "frf.nc"), "--fix", fix,
                                    "--out", str(tmp_path / "axis.toml")])
     assert res.exit_code == 2 and expect in " ".join(res.output.split())
+
+
+def test_cli_identify_frf_on_a_cut_without_excitation(tmp_path):
+    """A cutting trace (no excitation) drove a parameter to exp(huge): OverflowError, now a one-line refusal."""
+    from dataclasses import replace
+
+    from drivesense.sim.scenarios import paper_conditions, simulate_cut
+
+    cond = next(c for c in paper_conditions() if c.name.startswith("cross"))
+    cut = simulate_cut(cond, replace(ScenarioSettings(), duration=2.5, t_contact=1.2), seed=3)
+    write_recording(cut, tmp_path / "cut.nc")
+    res = CliRunner().invoke(app, ["identify", "frf", str(tmp_path / "cut.nc"), "--fix", "K_t=0.45,lead=0.005",
+                                   "--out", str(tmp_path / "AXIS.toml")])
+    assert res.exit_code == 2 and "cannot determine" in res.output, res.output
+    assert "Traceback" not in res.output and not (tmp_path / "AXIS.toml").exists()

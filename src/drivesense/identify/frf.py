@@ -127,33 +127,34 @@ def measure_frf(recording: Recording, *, K_t: float, lead: float, axis_name: str
     nperseg = nperseg or 8192
     if rec.n_samples < 2 * nperseg:
         raise InvalidSignalError(f"FRF window holds {rec.n_samples} samples; at least {2 * nperseg} "
-                                 f"(two Welch segments of {nperseg}) are needed — record longer or lower nperseg")
+                                 f"(two Welch segments of {nperseg}) are needed — record longer or lower --nperseg")
     R = lead / (2.0 * math.pi)
     thrust = K_t / R * rec[f"{ax}_current_ref"]
     a_m = _second_difference(R * rec[f"{ax}_motor_angle"], fs)
     a_t = _second_difference(rec[f"{ax}_table_position"], fs)
     overlap = nperseg // 2
     kw = dict(fs=fs, nperseg=nperseg, noverlap=overlap, window="hann", detrend="constant")
-    if reference == "excitation":
-        r = rec[exc_name]
-        f, s_ru = sps.csd(r, thrust, **kw)
-        _, s_rm = sps.csd(r, a_m, **kw)
-        _, s_rt = sps.csd(r, a_t, **kw)
-        motor, table = s_rm / s_ru, s_rt / s_ru
-        _, coh_m = sps.coherence(r, a_m, **kw)
-        _, coh_t = sps.coherence(r, a_t, **kw)
-        _, coh_u = sps.coherence(r, thrust, **kw)
-        coh_m, coh_t = coh_m * coh_u, coh_t * coh_u
-        energy = np.abs(s_ru)
-    else:
-        f, s_uu = sps.welch(thrust, **kw)
-        _, s_um = sps.csd(thrust, a_m, **kw)
-        _, s_ut = sps.csd(thrust, a_t, **kw)
-        motor, table = s_um / s_uu, s_ut / s_uu
-        _, coh_m = sps.coherence(thrust, a_m, **kw)
-        _, coh_t = sps.coherence(thrust, a_t, **kw)
-        energy = s_uu
-    in_band = (f >= fmin) & (f <= fmax)
+    with np.errstate(divide="ignore", invalid="ignore"):   # no excitation: 0/0, refused below
+        if reference == "excitation":
+            r = rec[exc_name]
+            f, s_ru = sps.csd(r, thrust, **kw)
+            _, s_rm = sps.csd(r, a_m, **kw)
+            _, s_rt = sps.csd(r, a_t, **kw)
+            motor, table = s_rm / s_ru, s_rt / s_ru
+            _, coh_m = sps.coherence(r, a_m, **kw)
+            _, coh_t = sps.coherence(r, a_t, **kw)
+            _, coh_u = sps.coherence(r, thrust, **kw)
+            coh_m, coh_t = coh_m * coh_u, coh_t * coh_u
+            energy = np.abs(s_ru)
+        else:
+            f, s_uu = sps.welch(thrust, **kw)
+            _, s_um = sps.csd(thrust, a_m, **kw)
+            _, s_ut = sps.csd(thrust, a_t, **kw)
+            motor, table = s_um / s_uu, s_ut / s_uu
+            _, coh_m = sps.coherence(thrust, a_m, **kw)
+            _, coh_t = sps.coherence(thrust, a_t, **kw)
+            energy = s_uu
+    in_band = (f >= fmin) & (f <= fmax) & np.isfinite(motor) & np.isfinite(table)
     # bins the excitation actually drives (a multisine leaves gaps between its lines)
     keep = in_band & (energy > 0.01 * np.median(energy[in_band])) if in_band.any() else in_band
     if keep.sum() < 10:
@@ -290,14 +291,14 @@ def _initial_guess(meas: MeasuredFRF, R: float, K_t: float, lead: float, T_a: fl
     band = (f > 50) & (f < 0.8 * f.max())
     if band.sum() < 5:
         raise IdentificationError("the measured band does not reach above 50 Hz: resonance and stiffness "
-                                  "cannot be determined (raise fmax / the excitation band)")
+                                  "cannot be determined (raise --fmax / the excitation band)")
     mag_t = np.abs(meas.table)
     f_res = float(f[np.flatnonzero(band)[np.argmax(mag_t[band])]])
     low = (f > 0.1 * f_res) & (f < 0.35 * f_res)
     if low.sum() < 3:
         raise IdentificationError(f"no measured frequencies between {0.1 * f_res:.0f} and {0.35 * f_res:.0f} Hz "
                                   f"(below the resonance near {f_res:.0f} Hz): the mass cannot be determined "
-                                  "(lower fmin / the excitation band)")
+                                  "(lower --fmin / the excitation band)")
     # rigid-body level, corrected for the signal chain (current loop, delays, sampling)
     unit = BallScrewAxis(J_r=0.5 * R * R, M_t=0.5, C_t=0.0, C_k=0.0, D_r=0.0, K_r=1e12, lead=lead, K_t=K_t)
     _, chain_t = model_frf(unit, f[low], T_a=T_a, T_b=0.0, omega_cc=omega_cc, fs=meas.fs)
@@ -315,6 +316,15 @@ def _initial_guess(meas: MeasuredFRF, R: float, K_t: float, lead: float, T_a: fl
             if c < best_cost:
                 best, best_cost = {**cand, "T_b": t_b}, c
     return best
+
+
+#: Decades either side of its start value a mechanical parameter may take in the fit.
+_LOG_SPAN = 6
+
+
+def _exp(x: float) -> float:
+    """``exp(x)``, or inf where it overflows (the interval of an undetermined parameter)."""
+    return math.exp(x) if x < 709.0 else math.inf
 
 
 def fit_frf(measured: MeasuredFRF, *, K_t: float, lead: float, fixed: dict | None = None,
@@ -373,6 +383,12 @@ def fit_frf(measured: MeasuredFRF, *, K_t: float, lead: float, fixed: dict | Non
 
     guess = _initial_guess(measured, R, K_t, lead, T_a, omega_cc,
                            lambda v: float(np.sum(residual_of({**v, **fixed}) ** 2)))
+    no_start = [p for p in free if guess is None or not (math.isfinite(guess[p]) and guess[p] >= 0
+                                                         and (p == "T_b" or guess[p] > 0))]
+    if no_start:
+        raise IdentificationError(
+            f"the measured FRFs cannot determine {', '.join(no_start)}: they give no start value (is an "
+            "excitation running on the current reference?); excite the axis, or fix these with --fix NAME=VALUE")
     guess.update(fixed)
 
     def unpack(x):
@@ -388,9 +404,15 @@ def fit_frf(measured: MeasuredFRF, *, K_t: float, lead: float, fixed: dict | Non
         return np.array([vals[p] / scale_tb if p == "T_b" else math.log(vals[p]) for p in free])
 
     x0 = pack(guess)
-    lower = np.array([0.0 if p == "T_b" else -np.inf for p in free])
-    sol = optimize.least_squares(residual, x0, method="trf", x_scale="jac", bounds=(lower, np.inf),
+    # mechanics within _LOG_SPAN decades of the start value: without excitation a parameter runs away
+    # (and would overflow exp); one that ends on that edge is undetermined
+    span = _LOG_SPAN * math.log(10.0)
+    lower = np.array([0.0 if p == "T_b" else x - span for p, x in zip(free, x0)])
+    upper = np.array([np.inf if p == "T_b" else x + span for p, x in zip(free, x0)])
+    sol = optimize.least_squares(residual, x0, method="trf", x_scale="jac", bounds=(lower, upper),
                                  max_nfev=400, xtol=1e-12, ftol=1e-12)
+    on_edge = [p for p, x, lo, hi in zip(free, sol.x, lower, upper)
+               if p != "T_b" and min(x - lo, hi - x) < 1e-3 * span]
     vals = unpack(sol.x)
     m = sol.fun.size
     dof = max(m - len(free), 1)
@@ -409,9 +431,14 @@ def fit_frf(measured: MeasuredFRF, *, K_t: float, lead: float, fixed: dict | Non
             ci[p] = (vals[p] - 1.96 * sd * scale_tb, vals[p] + 1.96 * sd * scale_tb)
         else:
             rel_std[p] = sd
-            ci[p] = (vals[p] * math.exp(-1.96 * sd), vals[p] * math.exp(1.96 * sd))
+            ci[p] = (vals[p] * _exp(-1.96 * sd), vals[p] * _exp(1.96 * sd))
     bad = [p for p in free if (p != "T_b" and rel_std[p] > max_rel_std)
            or (p == "T_b" and rel_std[p] > 0.5e-3)]
+    if on_edge:
+        raise IdentificationError(
+            f"the measured FRFs cannot determine {', '.join(on_edge)}: the fit ran {_LOG_SPAN} decades away "
+            "from the start value (is an excitation running on the current reference?); excite the axis around "
+            "its resonance, or fix these with --fix NAME=VALUE")
     if bad:
         detail = ", ".join(f"{p} (relative std {rel_std[p]:.3g})" if p != "T_b"
                            else f"T_b (std {rel_std[p] * 1e3:.3g} ms)" for p in bad)
