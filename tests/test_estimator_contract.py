@@ -17,7 +17,7 @@ from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelErr
 from drivesense.estimate import ForceEstimator, ForceStream
 from drivesense.learn.features import INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, input_matrix
 from drivesense.learn.kernel import LSTMWeights
-from drivesense.learn.train import LearnedModel, TrainConfig
+from drivesense.learn.model import LearnedModel, TrainConfig
 from drivesense.recording import Recording
 
 ALL = ("current", "rigid", "medob", "vibration", "model", "lstm", "hybrid")

@@ -19,7 +19,7 @@ torch = pytest.importorskip("torch")
 from drivesense.cli import app  # noqa: E402
 from drivesense.learn import Hybrid  # noqa: E402
 from drivesense.learn import LSTM  # noqa: E402
-from drivesense.learn.train import TrainConfig  # noqa: E402
+from drivesense.learn.model import TrainConfig  # noqa: E402
 from drivesense.io import write_recording
 
 TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_in=30, mc_samples=4, seed=1,

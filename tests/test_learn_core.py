@@ -141,7 +141,7 @@ def test_zero_epochs_are_refused_by_the_config_and_the_cli(tmp_path):
 
     from drivesense.cli import app
     from drivesense.errors import ConfigError
-    from drivesense.learn.train import TrainConfig
+    from drivesense.learn.model import TrainConfig
 
     with pytest.raises(ConfigError, match="'epochs' must be an integer >= 1"):
         TrainConfig(epochs=0)

@@ -11,7 +11,8 @@ from drivesense.errors import ConfigError
 from drivesense.estimate.model_based import ModelBased
 from drivesense.identify.presliding import fit_presliding
 from drivesense.io.axes_file import read_axes_file, write_axes_file
-from drivesense.machine.linear_motor import ThreeAxisModel, linear_machine_model, presliding_direction
+from drivesense.machine.linear_motor import ThreeAxisModel, linear_machine_model
+from drivesense.machine.presliding import presliding_direction
 from drivesense.sim.machining import simulate_process
 
 TRUE = linear_machine_model()

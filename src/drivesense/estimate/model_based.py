@@ -19,7 +19,7 @@ friction by twice the breakaway force from sample to sample.
 
 * Axes whose model has a presliding distance ``x_pre > 0`` (identified from
   the air moves, step 5 of :mod:`drivesense.identify.linear_axis`) use the
-  Dahl state of :func:`~drivesense.machine.linear_motor.presliding_direction`
+  Dahl state of :func:`~drivesense.machine.presliding.presliding_direction`
   instead: it follows the measured position, so a standing axis whose guides
   hold the process force by presliding is credited with the spring force of
   its micro-motion, and a reversal turns the friction over ``x_pre`` of travel.
@@ -42,7 +42,8 @@ import numpy as np
 from drivesense.errors import ConfigError, NotFittedError
 from drivesense.estimate.base import ForceEstimator
 from drivesense.identify.linear_axis import run_identification
-from drivesense.machine.linear_motor import AXES, ThreeAxisModel, carried_presliding_direction
+from drivesense.machine.linear_motor import AXES, ThreeAxisModel
+from drivesense.machine.presliding import carried_presliding_direction
 from drivesense.recording import Recording
 
 __all__ = ["ModelBased", "MODEL_INPUTS"]

@@ -1,6 +1,6 @@
 """Presliding distance of the linear-motor axes' friction (step 5 of the identification, beyond the paper).
 
-The Dahl state of :func:`~drivesense.machine.linear_motor.presliding_direction` turns the friction
+The Dahl state of :func:`~drivesense.machine.presliding.presliding_direction` turns the friction
 over a travel of a few ``x_pre``; with steps 1-4 of :mod:`drivesense.identify.linear_axis` fixed,
 ``x_pre`` is the bounded scalar minimiser of what remains of the Eq. 2 residual.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivesense.errors import CoverageError
-from drivesense.machine.linear_motor import presliding_direction
+from drivesense.machine.presliding import presliding_direction
 
 __all__ = ["fit_presliding"]
 
@@ -20,7 +20,7 @@ def fit_presliding(positions, forces, levels, *, bounds: tuple[float, float] = (
     """Presliding distance of the Dahl friction state by bounded least squares (step 5).
 
     Minimises ``sum (f - d(s; x_pre) g)^2`` over ``log x_pre``, where ``d`` is
-    :func:`~drivesense.machine.linear_motor.presliding_direction` of each
+    :func:`~drivesense.machine.presliding.presliding_direction` of each
     position trace, starting at 0.
 
     Parameters

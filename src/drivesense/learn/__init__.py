@@ -10,7 +10,7 @@ from __future__ import annotations
 from drivesense.errors import ConfigError
 from drivesense.estimate.registry import is_path, register
 from drivesense.learn.estimators import LSTM, Hybrid
-from drivesense.learn.train import LearnedModel, TrainConfig
+from drivesense.learn.model import LearnedModel, TrainConfig
 
 __all__ = ["LSTM", "Hybrid", "LearnedModel", "TrainConfig"]
 

@@ -18,7 +18,8 @@ import numpy as np
 from drivesense.errors import ConfigError, NotFittedError
 from drivesense.estimate.base import ForceEstimator, declared_delay, read_inputs, wrap_forces
 from drivesense.learn.features import INPUT_CHANNELS, TARGET_CHANNELS, resample_to
-from drivesense.learn.train import LearnedModel, train_model
+from drivesense.learn.model import LearnedModel
+from drivesense.learn.train import train_model
 from drivesense.recording import Recording
 
 __all__ = ["LSTM", "Hybrid"]
@@ -37,7 +38,7 @@ class LSTM(ForceEstimator):
 
     name = "lstm"
     drive = "linear"
-    #: Kind of :class:`~drivesense.learn.train.LearnedModel` this method runs.
+    #: Kind of :class:`~drivesense.learn.model.LearnedModel` this method runs.
     kind = "lstm"
 
     def __init__(self, model: LearnedModel | None = None, *, config=None) -> None:

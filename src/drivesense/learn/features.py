@@ -201,7 +201,7 @@ def presliding_features(positions, x_pre: float, state: dict | None = None) -> n
     At a reversal the guides' friction turns over within a few micrometres of
     travel, a sample or two at 250 Hz: the state follows the position there,
     where the sampled velocity only changes sign (see
-    :func:`drivesense.machine.linear_motor.presliding_direction`).
+    :func:`drivesense.machine.presliding.presliding_direction`).
 
     Parameters
     ----------
@@ -217,7 +217,7 @@ def presliding_features(positions, x_pre: float, state: dict | None = None) -> n
     -------
     ndarray, shape (n_samples, len(positions))
     """
-    from drivesense.machine.linear_motor import carried_presliding_direction
+    from drivesense.machine.presliding import carried_presliding_direction
 
     return np.column_stack([carried_presliding_direction(s, x_pre, state, i)
                             for i, s in enumerate(positions)]).astype(np.float32)

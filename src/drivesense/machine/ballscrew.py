@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from drivesense.errors import ConfigError
+from drivesense.machine.validation import dataclass_from_dict
 
 __all__ = ["BallScrewAxis", "ModalMatrices"]
 
@@ -255,17 +256,4 @@ class BallScrewAxis:
         ConfigError
             Naming missing or unknown keys and bad values.
         """
-        names = [f.name for f in fields(cls)]
-        missing = [n for n in names if n not in values]
-        unknown = [k for k in values if k not in names]
-        problems = []
-        if missing:
-            problems.append(f"missing key(s) {', '.join(missing)}")
-        if unknown:
-            problems.append(f"unknown key(s) {', '.join(unknown)}")
-        if problems:
-            raise ConfigError(f"{source}: {'; '.join(problems)} (expected {', '.join(names)})")
-        try:
-            return cls(**{n: values[n] for n in names})
-        except ConfigError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
+        return dataclass_from_dict(cls, values, source)

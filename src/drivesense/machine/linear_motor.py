@@ -12,7 +12,8 @@ with the Stribeck curve of Eq. 4 (shape factor ``delta = 2``)::
 
 Beyond the paper, ``sgn(v)`` may be replaced by a presliding (Dahl) state
 ``d`` in [-1, 1] that follows the position: over a travel ``ds`` it relaxes
-towards ``sgn(ds)`` as ``exp(-|ds| / x_pre)`` (:func:`presliding_direction`).
+towards ``sgn(ds)`` as ``exp(-|ds| / x_pre)`` (:mod:`drivesense.machine.presliding`,
+:func:`~drivesense.machine.presliding.presliding_direction`, re-exported here).
 Sliding, ``d = sgn(v)`` and Eq. 4 is unchanged; at standstill and through
 reversals the friction becomes a stiff, hysteretic spring of stiffness about
 ``F_br / x_pre`` instead of a sign that flips with the velocity noise.
@@ -36,34 +37,26 @@ exactly the model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
 
-from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.errors import ConfigError
 from drivesense.machine.friction import LuGreFriction, Ripple
+from drivesense.machine.presliding import carried_presliding_direction, presliding_direction
+from drivesense.machine.validation import dataclass_from_dict, signal_array
 
 __all__ = ["LinearMotorAxis", "ThreeAxisModel", "LinearAxisPhysics", "LinearMachinePhysics", "AXES",
            "cogging_table_force", "harmonic_cogging_table", "linear_machine_physics", "linear_machine_model",
-           "presliding_direction", "carried_presliding_direction"]
+           "presliding_direction", "carried_presliding_direction", "axis_name"]
 
 #: Axis letters of the 3-axis machine, in order.
 AXES = ("x", "y", "z")
 _SCALARS = ("K_m", "k", "s_r", "m", "F_C", "F_br", "v_s", "sigma", "delta", "pole_pitch", "x_pre")
-_OPTIONAL = ("pole_pitch", "delta", "x_pre")
+_OPTIONAL = ("pole_pitch", "delta", "x_pre", "undetermined")
 _NONNEG = ("k", "F_C", "F_br", "sigma", "x_pre")
 _POSITIVE = ("K_m", "m", "v_s", "delta", "pole_pitch")
-
-
-def _signal(value, name: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidSignalError(f"'{name}' must be numeric: {exc}") from None
-    if arr.ndim > 1:
-        raise InvalidSignalError(f"'{name}' must be a scalar or 1-D, got shape {arr.shape}")
-    return arr
 
 
 @njit(cache=True)
@@ -81,84 +74,21 @@ def cogging_table_force(table: np.ndarray, pole_pitch: float, s: float) -> float
     return table[i] + f * (table[j] - table[i])
 
 
-@njit(cache=True)
-def _dahl_direction(position, x_pre, s_prev, d0):
-    out = np.empty(position.size)
-    d = d0
-    prev = s_prev
-    for k in range(position.size):
-        ds = position[k] - prev
-        prev = position[k]
-        if ds > 0.0:
-            d = 1.0 + (d - 1.0) * math.exp(-ds / x_pre)
-        elif ds < 0.0:
-            d = -1.0 + (d + 1.0) * math.exp(ds / x_pre)
-        out[k] = d
-    return out
-
-
-def presliding_direction(position, x_pre: float, *, previous_position: float | None = None,
-                         direction: float = 0.0) -> np.ndarray:
-    """Presliding friction state ``d`` in [-1, 1] along a position trace (Dahl model, rate-independent).
-
-    Over each step ``ds`` between samples ``d`` relaxes exactly towards
-    ``sgn(ds)``: ``d <- sgn(ds) + (d - sgn(ds)) exp(-|ds| / x_pre)``.  Sliding
-    over a few ``x_pre`` saturates it at the direction of motion; position
-    noise at standstill moves it by about ``noise / x_pre``.
+def axis_name(name) -> str:
+    """``name`` if it is an axis letter of :data:`AXES`, else :class:`~drivesense.errors.ConfigError`.
 
     Parameters
     ----------
-    position : array_like
-        Axis position [m], 1-D.
-    x_pre : float
-        Presliding distance [m] (> 0).
-    previous_position : float, optional
-        Position of the sample before the first [m] (streaming); default: the
-        first sample (no step into it).
-    direction : float
-        State before the first sample [-] (0: unknown, no friction held).
+    name : str
+        Axis letter, ``"x"``, ``"y"`` or ``"z"``.
 
     Returns
     -------
-    ndarray
-        ``d`` per sample.
+    str
     """
-    s = np.ascontiguousarray(_signal(position, "position"), dtype=np.float64).ravel()
-    if not x_pre > 0:
-        raise ConfigError(f"presliding distance 'x_pre' must be > 0 [m], got {x_pre!r}")
-    if not -1.0 <= direction <= 1.0:
-        raise ConfigError(f"presliding state 'direction' must lie in [-1, 1], got {direction!r}")
-    if s.size == 0:
-        return s.copy()
-    prev = float(s[0]) if previous_position is None else float(previous_position)
-    return _dahl_direction(s, float(x_pre), prev, float(direction))
-
-
-def carried_presliding_direction(position, x_pre: float, state: dict | None, key) -> np.ndarray:
-    """:func:`presliding_direction` continued across stream chunks.
-
-    Parameters
-    ----------
-    position : array_like
-        Axis position of this chunk [m], 1-D.
-    x_pre : float
-        Presliding distance [m] (> 0).
-    state : dict or None
-        ``{key: (last position [m], direction [-])}`` from the previous chunk,
-        updated in place; None: a fresh start, nothing kept.
-    key : hashable
-        This axis's entry in ``state``.
-
-    Returns
-    -------
-    ndarray
-        ``d`` per sample.
-    """
-    prev, d0 = state.get(key, (None, 0.0)) if state is not None else (None, 0.0)
-    d = presliding_direction(position, x_pre, previous_position=prev, direction=d0)
-    if state is not None and d.size:
-        state[key] = (float(np.ravel(position)[-1]), float(d[-1]))
-    return d
+    if name not in AXES:
+        raise ConfigError(f"unknown axis {name!r} (expected x, y or z)")
+    return name
 
 
 def harmonic_cogging_table(harmonics, n: int = 64) -> np.ndarray:
@@ -216,7 +146,11 @@ class LinearMotorAxis:
         Stribeck shape factor [-] (2 in the paper).
     x_pre : float
         Presliding distance [m] of the Dahl friction state (beyond the paper;
-        see :func:`presliding_direction`); 0 (default): the paper's ``sgn(v)``.
+        see :func:`~drivesense.machine.presliding.presliding_direction`); 0 (default): the paper's ``sgn(v)``.
+    undetermined : tuple of str
+        Parameters the identification could not determine and set to a
+        documented fallback (e.g. ``("F_br", "v_s")``: Coulomb + viscous
+        friction with ``F_br = F_C``); empty (default) when all were identified.
     """
 
     K_m: float
@@ -231,8 +165,14 @@ class LinearMotorAxis:
     pole_pitch: float = 0.023
     delta: float = 2.0
     x_pre: float = 0.0
+    undetermined: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        und = self.undetermined
+        if isinstance(und, str) or not all(isinstance(n, str) and n in _SCALARS + ("cogging",) for n in und):
+            raise ConfigError(f"linear axis parameter 'undetermined' must list parameter names "
+                              f"({', '.join(_SCALARS)}, cogging), got {und!r}")
+        object.__setattr__(self, "undetermined", tuple(und))
         for name in _SCALARS:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
@@ -263,7 +203,7 @@ class LinearMotorAxis:
         current : float or array_like
             Motor current [A].
         """
-        return self.K_m * _signal(current, "current")
+        return self.K_m * signal_array(current, "current")
 
     def restoring_force(self, position):
         """Restoring force ``k (s - s_r)`` [N] at ``position`` [m].
@@ -273,7 +213,7 @@ class LinearMotorAxis:
         position : float or array_like
             Axis position [m].
         """
-        return self.k * (_signal(position, "position") - self.s_r)
+        return self.k * (signal_array(position, "position") - self.s_r)
 
     def cogging_force(self, position):
         """Cogging force [N] at ``position`` [m] (periodic linear interpolation in the table).
@@ -283,7 +223,7 @@ class LinearMotorAxis:
         position : float or array_like
             Axis position [m].
         """
-        s = _signal(position, "position")
+        s = signal_array(position, "position")
         n = self.cogging.size
         u = np.mod(s, self.pole_pitch) / self.pole_pitch * n
         i = np.floor(u)
@@ -304,11 +244,11 @@ class LinearMotorAxis:
             is the paper's sign function.
         direction : array_like, optional
             Presliding state in [-1, 1] replacing ``sgn(v)`` (e.g.
-            :func:`presliding_direction`); overrides ``v_eps``.
+            :func:`~drivesense.machine.presliding.presliding_direction`); overrides ``v_eps``.
         """
-        v = _signal(velocity, "velocity")
+        v = signal_array(velocity, "velocity")
         if direction is not None:
-            sgn = _signal(direction, "direction")
+            sgn = signal_array(direction, "direction")
         else:
             sgn = np.sign(v) if v_eps <= 0 else np.clip(v / v_eps, -1.0, 1.0)
         return sgn * self.stribeck_level(v) + self.sigma * v
@@ -321,7 +261,7 @@ class LinearMotorAxis:
         velocity : float or array_like
             Axis velocity [m/s].
         """
-        v = _signal(velocity, "velocity")
+        v = signal_array(velocity, "velocity")
         return self.F_C + (self.F_br - self.F_C) * np.exp(-np.abs(v / self.v_s) ** self.delta)
 
     def cogging_amplitudes(self, n_harmonics: int = 3) -> np.ndarray:
@@ -340,9 +280,11 @@ class LinearMotorAxis:
         return replace(self, **changes)
 
     def to_dict(self) -> dict:
-        """Parameters as plain JSON/TOML types (SI; ``cogging`` a list)."""
+        """Parameters as plain JSON/TOML types (SI; ``cogging`` a list; ``undetermined`` only when not empty)."""
         d = {name: getattr(self, name) for name in _SCALARS}
         d["cogging"] = [float(v) for v in self.cogging]
+        if self.undetermined:
+            d["undetermined"] = list(self.undetermined)
         return d
 
     @classmethod
@@ -356,20 +298,7 @@ class LinearMotorAxis:
         source : str
             Where the values come from, for messages.
         """
-        if not isinstance(values, dict):
-            raise ConfigError(f"{source}: expected a table of parameters, got {type(values).__name__}")
-        names = [f.name for f in fields(cls)]
-        unknown = [k for k in values if k not in names]
-        if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)} (expected {', '.join(names)})")
-        required = [n for n in names if n not in _OPTIONAL]
-        missing = [k for k in required if k not in values]
-        if missing:
-            raise ConfigError(f"{source}: missing key(s) {', '.join(missing)}")
-        try:
-            return cls(**values)
-        except ConfigError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
+        return dataclass_from_dict(cls, values, source, optional=_OPTIONAL)
 
 
 @dataclass(frozen=True, eq=False)
@@ -399,9 +328,7 @@ class ThreeAxisModel:
         name : {"x", "y", "z"}
             Axis letter.
         """
-        if name not in AXES:
-            raise ConfigError(f"unknown axis {name!r} (expected x, y or z)")
-        return getattr(self, name)
+        return getattr(self, axis_name(name))
 
     def stacked_masses(self) -> dict[str, float]:
         """Mass each motor moves [kg]: ``{x: m_x + m_z, y: m_x + m_y + m_z, z: m_z}`` (Eq. 2)."""
@@ -428,11 +355,12 @@ class ThreeAxisModel:
             Sign-function ramp of the friction [m/s] (see :meth:`LinearMotorAxis.friction_force`).
         direction : array_like, optional
             Presliding friction state in [-1, 1] replacing the sign (see
-            :func:`presliding_direction`).
+            :func:`~drivesense.machine.presliding.presliding_direction`).
         """
         ax = self.axis(name)
         mass = self.stacked_masses()[name]
-        return (ax.motor_force(current) - ax.restoring_force(position) - mass * _signal(acceleration, "acceleration")
+        return (ax.motor_force(current) - ax.restoring_force(position)
+                - mass * signal_array(acceleration, "acceleration")
                 - ax.cogging_force(position) - ax.friction_force(velocity, v_eps, direction))
 
     def to_dict(self) -> dict:
@@ -543,9 +471,7 @@ class LinearMachinePhysics:
         name : {"x", "y", "z"}
             Axis letter.
         """
-        if name not in AXES:
-            raise ConfigError(f"unknown axis {name!r} (expected x, y or z)")
-        return getattr(self, name)
+        return getattr(self, axis_name(name))
 
     def model(self) -> ThreeAxisModel:
         """The nominal estimator model (the true values identification should find)."""

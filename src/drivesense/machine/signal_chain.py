@@ -8,6 +8,7 @@ import math
 from dataclasses import asdict, dataclass, fields
 
 from drivesense.errors import ConfigError
+from drivesense.machine.validation import dataclass_from_dict
 
 __all__ = ["SignalParams"]
 
@@ -85,13 +86,4 @@ class SignalParams:
         -------
         SignalParams
         """
-        names = [f.name for f in fields(cls)]
-        unknown = [k for k in values if k not in names]
-        if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {', '.join(unknown)} (expected {', '.join(names)})")
-        try:
-            return cls(**values)
-        except ConfigError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
-        except TypeError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
+        return dataclass_from_dict(cls, values, source, optional=None)

@@ -1,0 +1,459 @@
+"""A trained LSTM force reconstruction (third paper, Sec. 2.3): its settings, inference and model folder.
+
+:class:`TrainConfig` holds the architecture and training settings;
+:class:`LearnedModel` the trained networks (one per force component), their
+scalers and calibrated Monte-Carlo dropout intervals, with batch and streaming
+inference in numba.  :func:`drivesense.learn.train.train_model` builds one.
+
+A trained model is a folder: ``config.json`` (architecture, scalers, interval
+calibration, training history) and one ``weights_{x,y,z}.pt`` per network
+(``state_dict``, loaded with ``weights_only=True``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivesense.errors import ConfigError
+from drivesense.estimate.model_based import ModelBased
+from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, TargetScaler, position_features,
+                                      presliding_features)
+from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm, skip_to_torch
+from drivesense.recording import Recording
+
+__all__ = ["TrainConfig", "LearnedModel", "require_torch"]
+
+
+def require_torch():
+    """Import torch or raise a clear error saying how to install it."""
+    try:
+        import torch
+    except ImportError:
+        raise ConfigError("the learned methods need PyTorch: pip install torch==2.13.0 (CPU build), "
+                          "then pip install 'drivesense[learn]'") from None
+    return torch
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Architecture and training settings.
+
+    Parameters
+    ----------
+    hidden : int
+        Cells per LSTM layer.
+    layers : int
+        Stacked layers.
+    dropout : float
+        Dropout probability between layers [-] (training and Monte-Carlo sampling).
+    fs : float
+        Sample rate the model works at [Hz] (traces are resampled explicitly).
+    window : int
+        Training window [samples].
+    burn_in : int
+        Leading samples of a window excluded from the loss.
+    batch : int
+        Windows per batch.
+    windows_per_epoch : int
+        Windows drawn per epoch.
+    epochs : int
+        Maximum epochs.
+    patience : int
+        Epochs without validation improvement before stopping.
+    lr : float
+        Adam learning rate [-] (the loss is on scaled forces).
+    seed : int
+        Seed of everything random.
+    mc_samples : int
+        Monte-Carlo dropout samples for intervals.
+    coverage : float
+        Nominal coverage of the intervals [-] (e.g. 0.95).
+    position_harmonics : int
+        Beyond the paper: sine and cosine of this many harmonics of the pole
+        pitch of each axis position are added to the inputs (cogging is
+        periodic in the position); 0 gives the paper's 14 inputs.
+    pole_pitch : float
+        Pole pitch of the linear motors [m] (catalogue value).
+    linear_skip : bool
+        Beyond the paper: a linear path from the inputs straight to the output
+        beside the LSTM (the network learns what a linear map of the inputs
+        cannot: friction, reversals, history); False gives the paper's network.
+    skip_taps : int, optional
+        Samples the linear skip looks back over: a causal FIR filter of the
+        inputs (and, in a hybrid, of the model's estimate), which can undo
+        the small lags and roll-offs a sample-by-sample map leaves; 1 is an
+        instantaneous map.  None (default): 4 for an LSTM, 8 for a hybrid
+        (each the better on the validation runs of the built dataset).
+    skip_lr_factor : float
+        Learning rate of the skip (already at its least-squares optimum) relative
+        to ``lr`` [-]: small values keep the LSTM from trading the linear fit away early.
+    presliding_length : float
+        Beyond the paper: the Dahl presliding state of each axis, computed
+        from its position over this distance [m] (a nominal guide value, not an
+        identified one), is added to the inputs: it turns over within a few
+        micrometres at a reversal, faster than 250 Hz velocity can show;
+        0 leaves it out.
+    lr_decay : float
+        Factor [-] on the learning rate after ``lr_patience`` epochs without a
+        validation improvement (1 keeps it constant).
+    lr_patience : int
+        Epochs without improvement before the learning rate is decayed.
+    grad_clip : float
+        Largest gradient norm per step [-] (0: no clipping).
+    """
+
+    hidden: int = 20
+    layers: int = 3
+    dropout: float = 0.1
+    fs: float = 250.0
+    window: int = 250
+    burn_in: int = 50
+    batch: int = 128
+    windows_per_epoch: int = 4096
+    epochs: int = 100
+    patience: int = 12
+    lr: float = 1e-3
+    seed: int = 0
+    mc_samples: int = 16
+    coverage: float = 0.9
+    position_harmonics: int = 3
+    pole_pitch: float = 0.023
+    linear_skip: bool = True
+    skip_taps: int | None = None
+    skip_lr_factor: float = 0.1
+    presliding_length: float = 10e-6
+    lr_decay: float = 0.5
+    lr_patience: int = 3
+    grad_clip: float = 1.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
+            raise ConfigError(f"'epochs' must be an integer >= 1 (0 saves an untrained model), got {self.epochs!r}")
+        if isinstance(self.position_harmonics, bool) or not isinstance(self.position_harmonics, int) \
+                or not 0 <= self.position_harmonics <= 8:
+            raise ConfigError(f"'position_harmonics' must be an integer in 0..8, got {self.position_harmonics!r}")
+        if self.skip_taps is not None and (isinstance(self.skip_taps, bool) or not isinstance(self.skip_taps, int)
+                                           or not 1 <= self.skip_taps <= 64):
+            raise ConfigError(f"'skip_taps' must be an integer in 1..64, got {self.skip_taps!r}")
+        if not (isinstance(self.pole_pitch, (int, float)) and self.pole_pitch > 0):
+            raise ConfigError(f"'pole_pitch' must be a length > 0 [m], got {self.pole_pitch!r}")
+        if not (isinstance(self.presliding_length, (int, float)) and self.presliding_length >= 0):
+            raise ConfigError(f"'presliding_length' must be a length >= 0 [m], got {self.presliding_length!r}")
+        if not 0 <= self.skip_lr_factor <= 1:
+            raise ConfigError(f"'skip_lr_factor' must be in [0, 1], got {self.skip_lr_factor!r}")
+        if not 0 < self.lr_decay <= 1:
+            raise ConfigError(f"'lr_decay' must be in (0, 1], got {self.lr_decay!r}")
+        if self.grad_clip < 0:
+            raise ConfigError(f"'grad_clip' must be >= 0 (0: no clipping), got {self.grad_clip!r}")
+
+
+_POOL = None
+#: Shortest input for which the three networks run on the thread pool (shorter: one after the other).
+_PARALLEL_MIN_SAMPLES = 2048
+
+
+def _pool():
+    """The thread pool the networks run on (created once: starting threads per trace costs more than a short trace)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=len(TARGET_CHANNELS), thread_name_prefix="drivesense-lstm")
+    return _POOL
+
+
+@dataclass
+class LearnedModel:
+    """A trained reconstruction (see module docstring for the folder format).
+
+    Attributes
+    ----------
+    kind : str
+        ``"lstm"`` or ``"hybrid"``.
+    config : TrainConfig
+        Settings it was trained with.
+    input_scaler : Scaler
+        Input scaling.
+    target_scalers : dict of str to TargetScaler
+        Eq. 17 per force channel.
+    weights : dict of str to LSTMWeights
+        Network per force channel.
+    force_scale : dict of str to float
+        Largest absolute training force per channel [N] (scales a hybrid's model input).
+    interval_scale : dict of str to float
+        Calibrated multiplier of the Monte-Carlo spread per channel [-].
+    history : dict
+        Training record (losses, epochs, seconds).
+    model_based : object, optional
+        The :class:`~drivesense.machine.linear_motor.ThreeAxisModel` of a hybrid.
+    """
+
+    kind: str
+    config: TrainConfig
+    input_scaler: Scaler
+    target_scalers: dict
+    weights: dict
+    force_scale: dict = field(default_factory=dict)
+    interval_scale: dict = field(default_factory=dict)
+    history: dict = field(default_factory=dict)
+    model_based: object = None
+
+    # ------------------------------------------------------------- features
+    def scaled_inputs(self, arrays, state: dict | None = None) -> np.ndarray:
+        """Network inputs shared by the three networks from ``{channel: samples}`` (SI): scaled NC
+        inputs, the pole-pitch harmonics of the positions, then their presliding states (float32).
+
+        ``state`` carries the presliding states between stream chunks (updated
+        in place; None: a fresh start).
+
+        Parameters
+        ----------
+        arrays : mapping of str to array_like
+            ``{channel: samples}`` [SI unit of each channel], at least
+            :data:`~drivesense.learn.features.INPUT_CHANNELS`.
+        state : dict, optional
+            ``{axis index: (last position [m], state [-])}``, updated in place.
+
+        Returns
+        -------
+        ndarray, shape (n_samples, n_inputs)
+        """
+        x = self.input_scaler.transform(np.column_stack([np.asarray(arrays[c], float) for c in INPUT_CHANNELS]))
+        pos = [arrays[f"{ax}_position"] for ax in ("x", "y", "z")]
+        k = self.config.position_harmonics
+        if k:
+            x = np.hstack([x, position_features(pos, self.config.pole_pitch, k)])
+        if self.config.presliding_length > 0:
+            x = np.hstack([x, presliding_features(pos, self.config.presliding_length, state)])
+        return x
+
+    def inputs(self, recording: Recording) -> tuple[np.ndarray, dict]:
+        """Scaled network inputs of a whole trace and the model part of each output [N] (zeros for a plain LSTM).
+
+        Parameters
+        ----------
+        recording : Recording
+            A trace holding the NC input channels.
+
+        Returns
+        -------
+        x : ndarray
+            Scaled inputs [-].
+        base : dict of str to ndarray
+            Model part of each force channel [N].
+        """
+        recording.require(*INPUT_CHANNELS)
+        arrays = {c: recording[c] for c in recording.channels}
+        x = self.scaled_inputs(arrays)
+        if self.kind == "hybrid":
+            return x, ModelBased(self.model_based).process({}, arrays)
+        return x, {ch: np.zeros(recording.n_samples) for ch in TARGET_CHANNELS}
+
+    def network_input(self, x: np.ndarray, base: np.ndarray, channel: str) -> np.ndarray:
+        """Inputs of ``channel``'s network: the NC inputs, plus the scaled model estimate for a hybrid.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n_samples, n_inputs)
+            Scaled NC inputs [-] (:meth:`scaled_inputs`).
+        base : ndarray
+            Model estimate of the force [N] (ignored for a plain LSTM).
+        channel : str
+            Force channel (``force_x``...).
+
+        Returns
+        -------
+        ndarray
+        """
+        if self.kind != "hybrid":
+            return x
+        return np.column_stack([x, base / self.force_scale[channel]]).astype(np.float32)
+
+    def new_state(self) -> dict:
+        """A fresh carried state: each network's hidden/cell state, the presliding states of the inputs
+        and (hybrid) of the model part; constant size."""
+        return {"networks": {ch: LSTMState(w) for ch, w in self.weights.items()}, "inputs": {}, "model": {}}
+
+    def forward(self, state: dict, arrays, *, network_inputs: dict | None = None) -> dict[str, np.ndarray]:
+        """Force per channel [N] for the next samples of ``{channel: samples}`` (SI), carrying ``state``.
+
+        Batch prediction is one call from :meth:`new_state`; streaming is one
+        call per chunk: the same numbers.  ``network_inputs``, if given, is
+        filled with each network's input matrix (for the intervals).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`new_state`; updated in place.
+        arrays : mapping of str to array_like
+            ``{channel: samples}`` [SI unit of each channel].
+        network_inputs : dict, optional
+            Filled with ``{force channel: input matrix}``.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Force per channel [N].
+        """
+        n = len(arrays[INPUT_CHANNELS[0]])
+        x_all = self.scaled_inputs(arrays, state["inputs"])
+        if self.kind == "hybrid":
+            bases = ModelBased(self.model_based).process(state["model"], arrays)
+        else:
+            bases = {ch: np.zeros(n) for ch in TARGET_CHANNELS}
+        inputs = {ch: self.network_input(x_all, bases[ch], ch) for ch in TARGET_CHANNELS}
+        if network_inputs is not None:
+            network_inputs.update(inputs)
+        nets = state["networks"]
+        if n >= _PARALLEL_MIN_SAMPLES:
+            # the compiled kernel releases the GIL: the three networks run side by side on a kept pool
+            raw = dict(zip(TARGET_CHANNELS, _pool().map(
+                lambda ch: run_lstm(self.weights[ch], nets[ch], inputs[ch]), TARGET_CHANNELS)))
+        else:
+            raw = {ch: run_lstm(self.weights[ch], nets[ch], inputs[ch]) for ch in TARGET_CHANNELS}
+        return {ch: bases[ch] + self.target_scalers[ch].inverse(raw[ch]) for ch in TARGET_CHANNELS}
+
+    def predict(self, recording: Recording, *, intervals: bool = False) -> dict[str, np.ndarray]:
+        """Force per channel [N] over a whole trace; with ``intervals``, also ``{ch}_lower`` / ``{ch}_upper``.
+
+        Parameters
+        ----------
+        recording : Recording
+            A trace holding the NC input channels.
+        intervals : bool, optional
+            Add Monte-Carlo dropout intervals.
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+        recording.require(*INPUT_CHANNELS)
+        inputs: dict = {}
+        out = self.forward(self.new_state(), {c: recording[c] for c in recording.channels},
+                           network_inputs=inputs if intervals else None)
+        if intervals:
+            for ch in TARGET_CHANNELS:
+                half = self.interval_scale[ch] * self.interval_spread(ch, inputs[ch])
+                out[f"{ch}_lower"], out[f"{ch}_upper"] = out[ch] - half, out[ch] + half
+        return out
+
+    def interval_spread(self, channel: str, x: np.ndarray) -> np.ndarray:
+        """Uncalibrated half-width of ``channel``'s prediction interval [N]: twice the Monte-Carlo
+        dropout spread plus a floor of 0.1 % of the force scale (:attr:`interval_scale` calibrates it).
+
+        Parameters
+        ----------
+        channel : str
+            Force channel (``force_x``...).
+        x : ndarray, shape (n_samples, n_inputs)
+            The network's input matrix [-] (:meth:`network_input`).
+
+        Returns
+        -------
+        ndarray
+            Half-width per sample [N].
+        """
+        ts = self.target_scalers[channel]
+        spread = _mc_spread(self.weights[channel], x, self.config.mc_samples, self.config.seed)
+        return spread * 2.0 * ts.f_max + 1e-3 * ts.f_max
+
+    # ---------------------------------------------------------- persistence
+    def save(self, folder) -> Path:
+        """Write the model folder (config.json + weights_*.pt).
+
+        Parameters
+        ----------
+        folder : str or Path
+            Created if needed.
+
+        Returns
+        -------
+        Path
+        """
+        torch = require_torch()
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        for ch in TARGET_CHANNELS:
+            w = self.weights[ch]
+            torch.save(_to_state_dict(w, torch), folder / f"weights_{ch[-1]}.pt")
+        cfg = {"format": "drivesense-learned-1", "kind": self.kind, "config": asdict(self.config),
+               "inputs": list(INPUT_CHANNELS), "targets": list(TARGET_CHANNELS),
+               "input_scaler": self.input_scaler.to_dict(),
+               "target_scalers": {k: v.f_max for k, v in self.target_scalers.items()},
+               "force_scale": self.force_scale, "interval_scale": self.interval_scale, "history": self.history}
+        if self.model_based is not None:
+            from drivesense.io.axes_file import write_axes_file
+
+            write_axes_file(folder / "model_based.toml", self.model_based)
+            cfg["model_based"] = "model_based.toml"
+        tmp = folder / ".config.json.tmp"
+        tmp.write_text(json.dumps(cfg, indent=1), encoding="utf-8")
+        tmp.replace(folder / "config.json")
+        return folder
+
+    @classmethod
+    def load(cls, folder) -> "LearnedModel":
+        """Read a model folder written by :meth:`save` (``torch.load(weights_only=True)``).
+
+        Parameters
+        ----------
+        folder : str or Path
+            A folder written by :meth:`save`.
+
+        Returns
+        -------
+        LearnedModel
+        """
+        torch = require_torch()
+        folder = Path(folder)
+        path = folder / "config.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"'{folder}' is not a drivesense model folder (no config.json)")
+        cfg = json.loads(path.read_text(encoding="utf-8"))
+        if cfg.get("format") != "drivesense-learned-1":
+            raise ConfigError(f"'{path}': unknown model format {cfg.get('format')!r}")
+        settings = dict(cfg["config"])
+        settings.setdefault("position_harmonics", 0)     # models saved before these had the paper's network
+        settings.setdefault("linear_skip", False)
+        settings.setdefault("presliding_length", 0.0)
+        settings.setdefault("skip_taps", 1)
+        try:
+            config = TrainConfig(**settings)
+        except TypeError as exc:
+            raise ConfigError(f"'{path}': bad training config: {exc}") from None
+        weights = {}
+        for ch in TARGET_CHANNELS:
+            state = torch.load(folder / f"weights_{ch[-1]}.pt", weights_only=True)
+            weights[ch] = LSTMWeights.from_state_dict(state, config.layers, config.dropout)
+        model_based = None
+        if "model_based" in cfg:
+            from drivesense.io.axes_file import read_axes_file
+
+            model_based = read_axes_file(folder / cfg["model_based"])
+        return cls(cfg["kind"], config, Scaler.from_dict(cfg["input_scaler"]),
+                   {k: TargetScaler(v) for k, v in cfg["target_scalers"].items()}, weights,
+                   cfg.get("force_scale", {}), cfg.get("interval_scale", {}), cfg.get("history", {}), model_based)
+
+
+def _to_state_dict(w: LSTMWeights, torch) -> dict:
+    state = {}
+    for k in range(w.layers):
+        n_in = int(w.in_dims[k])
+        state[f"lstm.weight_ih_l{k}"] = torch.from_numpy(w.w_ih[k, :, :n_in].copy())
+        state[f"lstm.weight_hh_l{k}"] = torch.from_numpy(w.w_hh[k].copy())
+        state[f"lstm.bias_ih_l{k}"] = torch.from_numpy(w.bias[k].copy())
+        state[f"lstm.bias_hh_l{k}"] = torch.zeros(w.bias.shape[1], dtype=torch.float64)
+    state["head.weight"] = torch.from_numpy(w.head_w[None, :].copy())
+    state["head.bias"] = torch.tensor([w.head_b], dtype=torch.float64)
+    if w.skip_w is not None:
+        state["skip.weight"] = torch.from_numpy(skip_to_torch(w.skip_w))
+    return state
+
+
+def _mc_spread(w: LSTMWeights, x: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    draws = np.stack([run_lstm(w, LSTMState(w), x, seed=seed + 1 + k) for k in range(samples)])
+    return draws.std(axis=0)
