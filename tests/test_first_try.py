@@ -59,3 +59,75 @@ def test_simulate_refuses_misplaced_options():
     assert res.exit_code == 2 and "give --out a folder" in res.output
     res = invoke("simulate", "no_such_thing", "--out", "x.nc")
     assert res.exit_code == 2 and "unknown scenario" in res.output and "air_moves" in res.output
+
+
+# ------------------------------------------------ item 14: key columns whole at 80 columns, units not eaten
+@pytest.fixture
+def narrow(monkeypatch):
+    """The CLI's console at 80 columns (CliRunner output is piped, not a terminal)."""
+    from drivesense.cli.common import console
+
+    monkeypatch.setattr(console, "width", 80)
+
+
+def _table_lines(output: str) -> list[str]:
+    return [line for line in output.splitlines() if "…" in line]
+
+
+def test_mtconnect_probe_keeps_channels_whole(narrow):
+    data = Path(__file__).parent / "data" / "mtconnect" / "devices.xml"
+    res = invoke("mtconnect", "probe", data)
+    assert res.exit_code == 0, res.output
+    assert not _table_lines(res.output)
+    for channel in ("x_table_position", "x_position_commanded", "spindle_accelerometer_acceleration"):
+        assert f" {channel} " in res.output, channel
+
+
+def test_wear_tables_keep_state_and_experiment_whole(narrow, tmp_path):
+    res = invoke("wear", "simulate", "--list")
+    assert res.exit_code == 0 and not _table_lines(res.output), res.output
+    assert invoke("wear", "simulate", "C", "--out", tmp_path / "s.csv").exit_code == 0
+    res = invoke("wear", "track", tmp_path / "s.csv")
+    assert res.exit_code == 0, res.output
+    assert not _table_lines(res.output)
+    assert " progressing " in res.output and " near end of life " in res.output
+
+
+def test_archive_search_keeps_the_tool_whole(narrow, tmp_path, monkeypatch):
+    import numpy as np
+
+    from drivesense.io import write_recording
+    from drivesense.recording import Recording
+
+    monkeypatch.setenv("DRIVESENSE_ARCHIVE", str(tmp_path / "a.sqlite"))
+    tool = "solid carbide end mill D10 Z4 TiAlN, 38/35 degree variable helix"
+    rec = Recording.from_arrays({"x_current_ref": np.zeros(50)}, fs=1000.0,
+                                meta={"name": "cut 7", "tool": tool, "machine": "Haas VF-2 [2016]"})
+    write_recording(rec, tmp_path / "r.nc")
+    assert invoke("archive", "add", tmp_path / "r.nc").exit_code == 0
+    res = invoke("archive", "search", "--tool", "carbide")
+    assert res.exit_code == 0, res.output
+    assert "…" not in res.output and "Haas VF-2 [2016]" in res.output
+    assert all(len(line) <= 80 for line in res.output.splitlines())
+    cells = " ".join(line.split("│")[5].strip() for line in res.output.splitlines() if line.count("│") == 7)
+    assert cells == tool          # the tool column, read down: the whole description
+
+
+def test_accuracy_table_keeps_scenario_names_whole():
+    from io import StringIO
+
+    from rich.console import Console
+
+    from drivesense.cli.common import accuracy_table
+
+    rows = [{"scenario": f"side_-x+y_ap{k}_ae10_vf800_n6000_seed{k}", "direction": "feed", "peak_to_peak_n": 120.0,
+             "method": m, "nrmse": 0.05} for k in range(2) for m in ("current", "rigid", "medob", "vibration")]
+    out = StringIO()
+    Console(file=out, width=80).print(accuracy_table(rows, "accuracy"))
+    assert "side_-x+y_ap0_ae10_vf800_n6000_seed0" in out.getvalue() and "…" not in out.getvalue()
+
+
+def test_units_in_brackets_survive_rich_markup(tmp_path):
+    res = invoke("sensor", "simulate", "--out-dir", tmp_path / "s", "--levels", "1.3")
+    assert res.exit_code == 0, res.output
+    assert "accel_ref [m/s^2]" in " ".join(res.output.split())

@@ -7,9 +7,10 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, write_json
+from drivesense.cli.common import console, friendly, key_column, write_json
 
 __all__ = ["register", "archive_app"]
 
@@ -107,10 +108,14 @@ def search(
     table = Table(title=f"{len(hits)} experiment(s)", caption="ids are shortened: any unique prefix works")
     fields = [f for f in ("machine", "tool", "material", "operator") if any(getattr(h, f) for h in hits)]
     for col in ("id", "created", "name", *fields, "samples"):
-        table.add_column(col, overflow="fold", no_wrap=col in ("id", "created", "samples"),
-                         justify="right" if col == "samples" else "left")
+        if col == "tool":                    # a key: never cut, whatever the terminal's width (the others fold)
+            key_column(table, col, [getattr(h, col) or "" for h in hits])
+        else:
+            table.add_column(col, overflow="fold", no_wrap=col in ("id", "created", "samples"),
+                             justify="right" if col == "samples" else "left")
     for h in hits:
-        table.add_row(h.id[:8], h.created[:10], h.name, *(getattr(h, f)[:30] for f in fields), f"{h.samples:,}")
+        table.add_row(h.id[:8], h.created[:10], escape(h.name or ""), *(escape(getattr(h, f) or "") for f in fields),
+                      f"{h.samples:,}")
     console.print(table)
 
 
@@ -132,12 +137,13 @@ def show(
         if info[key]:
             console.print(f"  {key}: {info[key]}", markup=False, highlight=False)
     for m in info["measurements"]:
-        table = Table(title=f"measurement {m['name'] or '(unnamed)'}: {m['samples']} samples @ {m['fs_hz']:g} Hz, "
-                            f"{m['duration_s']:g} s")
-        for col in ("channel", "units", "interface", "sensor"):
-            table.add_column(col)
+        table = Table(title=escape(f"measurement {m['name'] or '(unnamed)'}: {m['samples']} samples @ "
+                                   f"{m['fs_hz']:g} Hz, {m['duration_s']:g} s"))
+        key_column(table, "channel", [c["name"] for c in m["channels"]])
+        for col in ("units", "interface", "sensor"):
+            table.add_column(col, overflow="fold")
         for c in m["channels"]:
-            table.add_row(c["name"], c["units"], c["interface"], c["sensor"])
+            table.add_row(*(escape(c[k]) for k in ("name", "units", "interface", "sensor")))
         console.print(table)
         shown = {k: v for k, v in m["meta"].items() if k not in ("provenance",)}
         console.print(json.dumps(shown, indent=1, ensure_ascii=False)[:4000], markup=False, highlight=False)

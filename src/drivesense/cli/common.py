@@ -43,14 +43,20 @@ def warn(text: str) -> None:
     err_console.print(f"[bold yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True)
 
 
-def key_column(table: Table, header: str, values, **kwargs) -> None:
-    """Add a column that is never truncated: at least as wide as its longest value, no wrapping, folded if need be.
+def key_column(table: Table, header: str, values, *, max_width: int = 36, **kwargs) -> None:
+    """Add a column that is never truncated (scenario, channel, state, tool names).
 
-    Key columns (scenario, channel, state, tool names) must survive 80-column terminals and piped output;
-    the other columns wrap around them.
+    Key columns must survive 80-column terminals and piped output.  Values up to `max_width` characters
+    keep their full width and are not wrapped; longer ones (a tool's description) wrap at spaces and fold
+    a word too long for the column: nothing ends in an ellipsis.  The other columns wrap around it.
     """
-    width = max((len(str(v)) for v in values), default=0)
-    table.add_column(header, no_wrap=True, overflow="fold", min_width=max(width, 1), **kwargs)
+    texts = [str(v) for v in values]
+    longest = max(map(len, texts), default=1)
+    if longest <= max_width:
+        table.add_column(header, no_wrap=True, overflow="fold", min_width=longest, **kwargs)
+    else:
+        longest_word = max((len(w) for t in texts for w in t.split()), default=1)
+        table.add_column(header, overflow="fold", min_width=min(longest_word, max_width), **kwargs)
 
 
 def write_json(path: Optional[Path], payload: dict) -> None:
@@ -59,7 +65,7 @@ def write_json(path: Optional[Path], payload: dict) -> None:
         return
     from drivesense.io import write_json_file
 
-    console.print(f"wrote {write_json_file(path, payload)}")
+    console.print(f"wrote {write_json_file(path, payload)}", markup=False)
 
 
 def progress_bar() -> Progress:
@@ -70,18 +76,18 @@ def progress_bar() -> Progress:
 def accuracy_table(rows: list[dict], title: str) -> Table:
     methods = list(dict.fromkeys(r["method"] for r in rows))
     table = Table(title=title, caption="NRMSE = RMSE / peak-to-peak of the filtered true force; RMSE [N] in the JSON")
-    table.add_column("scenario")
-    table.add_column("dir")
-    table.add_column("F p2p [N]", justify="right")
+    key_column(table, "scenario", [r["scenario"] for r in rows])
+    table.add_column("dir", no_wrap=True)
+    table.add_column("F p2p [N]", justify="right", overflow="fold")
     for m in methods:
-        table.add_column(m, justify="right")
+        table.add_column(m, justify="right", overflow="fold")
     by = {}
     for r in rows:
         by.setdefault(r["scenario"], {})[r["method"]] = r
     for scen, per in by.items():
         first = next(iter(per.values()))
         cells = [f"{per[m]['nrmse'] * 100:.1f} %" if m in per else "-" for m in methods]
-        table.add_row(scen, first["direction"], f"{first['peak_to_peak_n']:.1f}", *cells)
+        table.add_row(escape(scen), first["direction"], f"{first['peak_to_peak_n']:.1f}", *cells)
     return table
 
 

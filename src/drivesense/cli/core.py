@@ -57,8 +57,8 @@ def demo(
     vib = max(summary["worst_nrmse"].get("vibration/feed", 0), summary["worst_nrmse"].get("vibration/cross", 0))
     console.print(f"worst VibrationMode NRMSE: {vib * 100:.2f} %   "
                   f"cross-feed RigidBody / VibrationMode (smallest ratio): "
-                  f"{summary['cross_rigid_over_vibration_min']:.1f}x")
-    console.print(f"figures: {out}/<scenario>.png, {out}/friction_maps_*.png")
+                  f"{summary['cross_rigid_over_vibration_min']:.1f}x", markup=False)
+    console.print(f"figures: {out}/<scenario>.png, {out}/friction_maps_*.png", markup=False)
     payload = {"machine": machine_info(), "axis": axis.to_dict(), "signal": signal.to_dict(),
                "accuracy": rows, "summary": summary, "figures": figures}
     write_json(json_path or out / "demo.json", payload)
@@ -71,7 +71,7 @@ def simulate(
     scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Output .nc (lossless) or .csv; for air_moves a "
                                                               "folder (one .nc per move).")] = None,
-    list_: Annotated[bool, typer.Option("--list", help="List the scenarios, each with a one-line description.")] = False,
+    list_: Annotated[bool, typer.Option("--list", help="List the scenarios (one line each).")] = False,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
     ideal: Annotated[bool, typer.Option(help="Use exactly the estimators' model (no friction, noise...).")] = False,
     ap: Annotated[Optional[float], typer.Option("--ap", help="Linear-machine processes: axial depth of cut [mm] "
@@ -234,7 +234,7 @@ def estimate(
         save_figure(fig, plot)
         info["plot"] = str(plot)
         info["plot_window_s"] = [float(zoom[0]), float(zoom[1])]
-    table = Table(title=f"{method} estimate of {trace.name}", show_header=False)
+    table = Table(title=escape(f"{method} estimate of {trace.name}"), show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     table.add_row("compensation", info["compensation"] + (f" ({info['tare_n']:.2f} N)" if "tare_n" in info else ""))
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms")
@@ -245,7 +245,7 @@ def estimate(
         s = info["score_vs_reference"]
         table.add_row("vs reference", f"RMSE {s['rmse_n']:.2f} N, NRMSE {s['nrmse'] * 100:.2f} %")
     console.print(table)
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out}", markup=False)
     write_json(json_path, info)
 
 
@@ -329,7 +329,8 @@ def bench(
             table.add_row(row["excitation"], *cells, "yes" if row["all_within_targets"] else "NO")
         console.print(table)
         console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
-                      f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions")
+                      f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions",
+                      markup=False)
     for part in ("wear", "io", "learn"):
         if part in result and isinstance(result[part], dict):
             _print_targets(part, result[part])
@@ -369,7 +370,7 @@ def axis_cmd(
     if preset != "table1":
         raise ConfigError(f"unknown preset {preset!r} (known: table1)")
     write_axis_file(out, table1_axis(), SignalParams())
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out}", markup=False)
 
 
 def register(root: typer.Typer) -> None:

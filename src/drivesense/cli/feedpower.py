@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, write_json
+from drivesense.cli.common import console, friendly, key_column, write_json
 
 __all__ = ["register", "feedpower_app"]
 
@@ -36,20 +36,20 @@ def fit(
     model = fit_feed_power(data)
     model.save(model_path)
     cv = cross_validate(data)
-    table = Table(title=f"Feed-drive power to x-force: {len(data)} cuts of {cuts.name}")
+    table = Table(title=escape(f"Feed-drive power to x-force: {len(data)} cuts of {cuts.name}"))
     for col in ("slide speed", "cuts", "slope [N/W]", "intercept [N]", "R²", "eta(v)"):
-        table.add_column(escape(col), justify="right")
+        table.add_column(escape(col), justify="right", overflow="fold")
     for s in per_speed_fits(data):
         table.add_row(f"{s.speed * 6e4:.0f} mm/min ({s.speed / _IN_MIN:.0f} in/min)", str(s.cuts), f"{s.slope:.4g}",
                       f"{s.intercept:.3g}", f"{s.r2:.4f}", f"{model.efficiency(s.speed):.4g}")
     console.print(table)
     console.print(f"model: F_x = ({model.a0:.4g} {model.a1:+.4g} s/m * v) (P_total - P_tare) / v {model.f0:+.3g} N, "
                   f"rms error {model.rms_error:.2f} N; valid for {model.speed_range[0] * 6e4:.4g}-"
-                  f"{model.speed_range[1] * 6e4:.4g} mm/min", highlight=False)
+                  f"{model.speed_range[1] * 6e4:.4g} mm/min", highlight=False, markup=False)
     loso = ", ".join(f"{x['speed_m_s'] * 6e4:.0f} mm/min {100 * x['mean_error']:.1f} %" for x in cv["loso"])
     console.print(f"cross-validation: leave-one-cut-out mean error {100 * cv['loco_mean_error']:.1f} %"
-                  + (f"; leave-one-speed-out {loso}" if loso else ""), highlight=False)
-    console.print(f"wrote {model_path}")
+                  + (f"; leave-one-speed-out {loso}" if loso else ""), highlight=False, markup=False)
+    console.print(f"wrote {model_path}", markup=False)
     info = {"cuts": str(cuts), "model": model.to_dict(), "per_speed": [s.__dict__ for s in per_speed_fits(data)],
             "cross_validation": cv, "model_file": str(model_path)}
     if plot:
@@ -58,7 +58,7 @@ def fit(
         fig = plot_feed_power(data, model, per_speed_fits(data), title=f"Feed-drive power to x-force: {cuts.name}")
         save_figure(fig, plot)
         info["plot"] = str(plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, info)
 
 
@@ -110,9 +110,10 @@ def predict(
                                 for i in range(len(data))]
     with atomic_output(out) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    table = Table(title=f"Predicted average x-force ({model_path.name})")
-    for h in head:
-        table.add_column(escape(h), justify="right")
+    table = Table(title=escape(f"Predicted average x-force ({model_path.name})"))
+    key_column(table, "cut", data.labels, justify="right")
+    for h in head[1:]:
+        table.add_column(escape(h), justify="right", overflow="fold")
     for i in range(len(data)):
         table.add_row(escape(str(cols[0][i])), *[f"{c[i]:.4g}" if np.isfinite(c[i]) else "-" for c in cols[1:]],
                       escape(flags[i]))
@@ -121,8 +122,8 @@ def predict(
         warn(f"{len(flagged)} of {len(data)} cut(s) not predicted (flag 'out_of_range' in {out}): "
              + "; ".join(f"cut {data.labels[i]}: {reasons[i]}" for i in flagged))
     if "mean_abs_error" in info:
-        console.print(f"mean |error| against the measured force: {100 * info['mean_abs_error']:.1f} %")
-    console.print(f"wrote {out}")
+        console.print(f"mean |error| against the measured force: {100 * info['mean_abs_error']:.1f} %", markup=False)
+    console.print(f"wrote {out}", markup=False)
     write_json(json_path, info)
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import console, friendly, read_trace, write_json
@@ -59,7 +60,8 @@ def identify_frf(
     measured = measure_frf(rec, K_t=K_t, lead=lead, axis_name=axis_name, nperseg=nperseg, fmin=fmin, fmax=fmax)
     fit = fit_frf(measured, K_t=K_t, lead=lead, fixed=given, **chain)
     write_axis_file(out, fit.axis, fit.signal)
-    table = Table(title=f"FRF fit of {trace.name} ({measured.reference} reference, {measured.freq.size} lines)")
+    table = Table(title=escape(f"FRF fit of {trace.name} ({measured.reference} reference, {measured.freq.size} "
+                               "lines)"))
     for col in ("parameter", "value", "95 % interval", "std"):
         table.add_column(col, justify="right" if col != "parameter" else "left")
     for name in ("J_r", "M_t", "C_t", "C_k", "D_r", "K_r", "T_b"):
@@ -72,13 +74,13 @@ def identify_frf(
             table.add_row(name, f"{value:.5g}", "fixed", "")
     console.print(table)
     console.print(f"normalised residual {fit.normalised_rms:.2f}, {fit.iterations} iterations, "
-                  f"{fit.seconds:.2f} s; T_comp = T_a + T_b = {fit.signal.T_comp * 1e3:.4f} ms")
-    console.print(f"wrote {out}")
+                  f"{fit.seconds:.2f} s; T_comp = T_a + T_b = {fit.signal.T_comp * 1e3:.4f} ms", markup=False)
+    console.print(f"wrote {out}", markup=False)
     if plot:
         from drivesense.plot import plot_frf_fit, save_figure
 
         save_figure(plot_frf_fit(fit), plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, {"trace": str(trace), "axis_file": str(out), **fit.to_dict()})
 
 

@@ -79,13 +79,13 @@ def identify_linear(
     for label, fmt in rows:
         table.add_row(escape(label), *(fmt(model.axis(a), report.steps[a], a) for a in ("x", "y", "z")))
     console.print(table)
-    console.print("seconds per axis: " + ", ".join(f"{k} {v:.3f}" for k, v in report.seconds.items()))
-    console.print(f"wrote {out}")
+    console.print("seconds per axis: " + ", ".join(f"{k} {v:.3f}" for k, v in report.seconds.items()), markup=False)
+    console.print(f"wrote {out}", markup=False)
     if plot:
         from drivesense.plot import plot_identification, save_figure
 
         save_figure(plot_identification(report), plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, {"air_moves": [str(p) for p in air_moves], "axes_file": str(out), **report.to_dict()})
 
 
@@ -105,7 +105,7 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     info: dict = {"method": est.name, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
                   "latency_s": force.meta["latency_s"], "sign": force.meta["sign"], "output": str(out),
                   "force_n": {}, "score_vs_reference": {}, "warnings": []}
-    table = Table(title=f"{est.name} estimate of {trace.name}", show_header=False)
+    table = Table(title=escape(f"{est.name} estimate of {trace.name}"), show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the trace's declared delay)")
     window = tuple(rec.meta.get("score_window", (rec.t0, rec.t0 + rec.duration)))
@@ -120,7 +120,7 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
             row += f"   vs reference: RMSE {s.rmse_n:.2f} N, NRMSE {s.nrmse * 100:.2f} %"
         table.add_row(f"{ch} mean / min / max", row)
     console.print(table)
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out}", markup=False)
     if plot:
         from drivesense.plot import plot_force_estimate, save_figure
 

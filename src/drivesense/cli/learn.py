@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import console, err_console, friendly, progress_bar, write_json
@@ -39,10 +40,10 @@ def dataset_build(
     for entry in index["runs"]:
         split = entry["spec"]["split"] + (" (air cuts)" if entry["spec"].get("air") else "")
         splits[split] = splits.get(split, 0) + 1
-    table = Table(title=f"dataset in {out}", show_header=False)
+    table = Table(title=escape(f"dataset in {out}"), show_header=False)
     table.add_row("runs", ", ".join(f"{k}: {v}" for k, v in splits.items()))
-    table.add_row("held-out process type", index["held_out_process"])
-    table.add_row("exclusion rule", index["exclusion_rule"])
+    table.add_row("held-out process type", escape(index["held_out_process"]))
+    table.add_row("exclusion rule", escape(index["exclusion_rule"]))
     table.add_row("size on disk", f"{index['bytes_on_disk'] / 2**20:.1f} MiB")
     console.print(table)
     write_json(json_path, {k: v for k, v in index.items() if k != "runs"} | {"splits": splits, "folder": str(out)})
@@ -93,7 +94,7 @@ def train(
     est.save(out)
     hist = est.model.history
     console.print(f"trained {kind} on {hist['runs']['train']} runs (validation {hist['runs']['val']}) in "
-                  f"{hist['total_seconds']:.0f} s; epochs {hist['epochs']}; wrote {out}")
+                  f"{hist['total_seconds']:.0f} s; epochs {hist['epochs']}; wrote {out}", markup=False)
     write_json(json_path, {"kind": kind, "model": str(out), "history": hist,
                            "interval_scale": est.model.interval_scale})
 

@@ -6,9 +6,11 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich import box
+from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, show_warnings, write_json
+from drivesense.cli.common import console, friendly, key_column, show_warnings, write_json
 
 __all__ = ["register", "mtconnect_app"]
 
@@ -46,12 +48,15 @@ def probe(
     for dev in model.devices:
         console.print(f"device {dev['name']} ({dev['uuid']}) {dev['manufacturer']} {dev['model']}".rstrip(),
                       markup=False, highlight=False)
-    table = Table(title=f"{len(rows)} data item(s)")
-    for col in ("id", "component", "category", "type", "sub_type", "units", "channel", "si_unit"):
-        table.add_column(col)
+    table = Table(title=f"{len(rows)} data item(s)", box=box.SIMPLE, padding=(0, 1))
+    key_column(table, "id", [r["id"] for r in rows])            # the keys: never cut, whatever the width
+    key_column(table, "channel", [r["channel"] for r in rows])
+    table.add_column("units -> SI", overflow="fold")
+    table.add_column("component: category type/sub_type", overflow="fold")
     for r in rows:
-        table.add_row(*(r[c] for c in ("id", "component", "category", "type", "sub_type", "units", "channel",
-                                       "si_unit")))
+        units = f"{r['units']} -> {r['si_unit']}" if r["si_unit"] else r["units"]
+        what = f"{r['component']}: {r['category']} {r['type']}" + (f"/{r['sub_type']}" if r["sub_type"] else "")
+        table.add_row(*(escape(c) for c in (r["id"], r["channel"], units, what)))
     console.print(table)
     write_json(json_path, {"devices": model.devices, "data_items": rows})
 

@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (console, err_console, friendly, progress_bar, read_trace, save_recording,
-                                   write_json)
+from drivesense.cli.common import (console, err_console, friendly, key_column, progress_bar, read_trace,
+                                   save_recording, write_json)
 
 __all__ = ["register", "sensor_app"]
 
@@ -57,7 +57,7 @@ def simulate(
         save_recording(simulate_machining_vibration(seed=seed + 100), out_dir / f"milling.{fmt}", parents=True)
         progress.advance(task)
     console.print(f"wrote {len(amps)} shaker pairs and milling.{fmt} to {out_dir} "
-                  + "(channels electret [V], accel_ref [m/s^2])")
+                  + "(channels electret [V], accel_ref [m/s^2])", markup=False)
 
 
 @sensor_app.command("calibrate")
@@ -80,22 +80,23 @@ def calibrate(
     cal.save(out)
     lin = cal.linearity
     table = Table(title=f"Sensor calibration from {len(recs)} pair(s)")
-    table.add_column("recording")
+    key_column(table, "recording", [p.name for p in pairs])
     table.add_column(escape("level [g rms]"), justify="right")
     table.add_column(escape("band gain [mV/g]"), justify="right")
     for p, a, g in zip(pairs, lin.get("amplitudes_g", []), lin.get("band_gain", [])):
-        table.add_row(p.name, f"{a:.2f}", f"{g * 9.80665e3:.2f}")
+        table.add_row(escape(p.name), f"{a:.2f}", f"{g * 9.80665e3:.2f}")
     console.print(table)
     if lin.get("linear") is None:
         err_console.print("[bold yellow]warning:[/] one pair only: linearity not checked", highlight=False)
     elif lin["linear"]:
         console.print(f"linear: band gains agree within {100 * lin['spread']:.2f} % "
-                      f"(tolerance {100 * lin['tolerance']:.0f} %)")
+                      f"(tolerance {100 * lin['tolerance']:.0f} %)", markup=False)
     else:
         err_console.print(f"[bold yellow]warning:[/] NOT linear: band gains spread {100 * lin['spread']:.1f} % "
                           f"(> {100 * lin['tolerance']:.0f} %); the filter holds only near the levels it saw",
                           highlight=False)
-    console.print(f"{cal.taps.size}-tap filter for {cal.band[0]:g}-{cal.band[1]:g} Hz at {cal.fs:g} Hz; wrote {out}")
+    console.print(f"{cal.taps.size}-tap filter for {cal.band[0]:g}-{cal.band[1]:g} Hz at {cal.fs:g} Hz; wrote {out}",
+                  markup=False)
     info = {"pairs": [str(p) for p in pairs], "filter": str(out), "fs_hz": cal.fs, "band_hz": list(cal.band),
             "taps": int(cal.taps.size), "linearity": lin}
     if plot:
@@ -103,7 +104,7 @@ def calibrate(
 
         save_figure(plot_sensor_calibration(cal), plot)
         info["plot"] = str(plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, info)
 
 
@@ -130,12 +131,13 @@ def apply(
     acc = result["acceleration"]
     info = {"recording": str(recording), "filter": str(filter_path), "output": str(out),
             "acceleration_rms_m_s2": float(np.std(acc))}
-    console.print(f"acceleration rms {np.std(acc):.3g} m/s^2 ({np.std(acc) / 9.80665:.3g} g); wrote {out}")
+    console.print(f"acceleration rms {np.std(acc):.3g} m/s^2 ({np.std(acc) / 9.80665:.3g} g); wrote {out}",
+                  markup=False)
     if reference_channel in rec.channels:
         res = deconvolution_residual(cal, rec[sensor_channel], rec[reference_channel], fs=rec.fs)
         info["residual_vs_reference"] = res
         console.print(f"against {reference_channel}: residual {100 * res:.2f} % of the reference rms in "
-                      f"{cal.band[0]:g}-{cal.band[1]:g} Hz")
+                      f"{cal.band[0]:g}-{cal.band[1]:g} Hz", markup=False)
     write_json(json_path, info)
 
 

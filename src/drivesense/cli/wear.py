@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, err_console, friendly, progress_bar, write_json
+from drivesense.cli.common import console, friendly, key_column, progress_bar, warn, write_json
 
 __all__ = ["register", "wear_app"]
 
@@ -71,10 +71,12 @@ def simulate(
 
     if list_:
         table = Table(title="Table 1 tool-wear experiments")
-        for col in ("exp", "tool", "D [mm]", "flutes", "rpm", "feeds [mm]", "entry/exit [deg]", "calib. every [m]",
+        experiments = table1_experiments()
+        key_column(table, "exp", list(experiments))
+        for col in ("tool", "D [mm]", "flutes", "rpm", "feeds [mm]", "entry/exit [deg]", "calib. every [m]",
                     "paper mode"):
-            table.add_column(escape(col))
-        for e in table1_experiments().values():
+            table.add_column(escape(col), overflow="fold")
+        for e in experiments.values():
             table.add_row(e.name, e.tool_material, f"{e.diameter * 1e3:.4g}", str(e.flutes),
                           f"{e.spindle_speed * 30 / math.pi:.0f}", " ".join(f"{f * 1e3:.3g}" for f in e.feeds),
                           " ".join(f"{math.degrees(a):.0f}/{math.degrees(b):.0f}" for a, b in e.angles),
@@ -86,7 +88,8 @@ def simulate(
     life = simulate_tool_life(experiment, seed)
     _write_session(life, out)
     console.print(f"wrote {out}: experiment {life.experiment.name}, {len(life.truth['distance'])} calibrations, "
-                  f"{len(life.table)} cuts; the tool failed at {life.failure_distance:.3g} m ({life.failure_mode})")
+                  f"{len(life.table)} cuts; the tool failed at {life.failure_distance:.3g} m ({life.failure_mode})",
+                  markup=False)
     write_json(json_path, {"experiment": life.experiment.name, "seed": seed, "session": str(out),
                            "failure_distance_m": life.failure_distance, "failure_mode": life.failure_mode,
                            "chips": [{"distance_m": d, "depth_m": s} for d, s in life.chips],
@@ -141,7 +144,7 @@ def calibrate(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SeeSawWarning)
         fit = fit_cut_table(table, idx, runout=_runout(runout_um, runout_phase_deg, helix_deg))
-    out = Table(title=f"Tangential force model from {len(idx)} cuts of {cuts.name}", show_header=False)
+    out = Table(title=escape(f"Tangential force model from {len(idx)} cuts of {cuts.name}"), show_header=False)
     out.add_row("K_tc (cutting)", f"{fit.Ktc * 1e-6:.1f} ± {fit.Ktc_se * 1e-6:.2g} N/mm²")
     out.add_row("K_te (edge)", f"{fit.Kte * 1e-3:.2f} ± {fit.Kte_se * 1e-3:.2g} N/mm")
     out.add_row("corr(K_tc, K_te)", f"{fit.correlation:+.3f}")
@@ -149,14 +152,14 @@ def calibrate(
     out.add_row("h_avg range", f"{fit.h_avg.min() * 1e3:.4g} - {fit.h_avg.max() * 1e3:.4g} mm")
     console.print(out)
     for note in fit.warnings:
-        err_console.print(f"[bold yellow]warning:[/] {note}", highlight=False)
+        warn(note)
     info = {"table": str(cuts), "cuts": [int(i) for i in idx], **fit.to_dict()}
     if plot:
         from drivesense.plot import plot_calibration, save_figure
 
         save_figure(plot_calibration(fit, title=f"K_tc / K_te calibration: {cuts.name}"), plot)
         info["plot"] = str(plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, info)
 
 
@@ -185,9 +188,11 @@ def track(
         report = track_wear(table, reference=reference, runout=_runout(runout_um, runout_phase_deg, helix_deg))
         progress.update(task, completed=len(report.states))
     colour = {"new": "green", "progressing": "yellow", "near end of life": "bold red"}
-    out = Table(title=f"Wear history of {session.name}")
-    for col in ("#", "distance [m]", "K_tc [N/mm²]", "K_te [N/mm]", "power +%", "state", "mode"):
-        out.add_column(escape(col), justify="right" if col not in ("state", "mode") else "left")
+    out = Table(title=escape(f"Wear history of {session.name}"))
+    for col in ("#", "distance [m]", "K_tc [N/mm²]", "K_te [N/mm]", "power +%"):
+        out.add_column(escape(col), justify="right", overflow="fold")
+    key_column(out, "state", [s.state for s in report.states])   # the keys: never cut
+    key_column(out, "mode", [s.mode for s in report.states])
     for s in report.states:
         pct = "" if s.percent_power is None else f"{s.percent_power:+.0f}"
         out.add_row(str(s.index), f"{s.distance:.3g}", f"{s.Ktc * 1e-6:.0f} ± {s.Ktc_se * 1e-6:.0f}",
@@ -195,11 +200,11 @@ def track(
     console.print(out)
     if report.alarm_index is not None:
         console.print(f"[bold red]ALARM[/] end of tool life near: calibration {report.alarm_index} at "
-                      f"{report.alarm_distance:.3g} m — {report.states[report.alarm_index].evidence}",
+                      f"{report.alarm_distance:.3g} m — {escape(report.states[report.alarm_index].evidence)}",
                       highlight=False)
     else:
-        console.print(f"no end-of-life alarm; state {report.state}", highlight=False)
-    console.print(f"dominant mode: {report.mode} — {report.states[-1].evidence}", highlight=False)
+        console.print(f"no end-of-life alarm; state {report.state}", highlight=False, markup=False)
+    console.print(f"dominant mode: {report.mode} — {report.states[-1].evidence}", highlight=False, markup=False)
     info = report.to_dict()
     info["table"] = str(session)
     info["settings"] = WearTracker().settings.__dict__
@@ -208,7 +213,7 @@ def track(
 
         save_figure(plot_wear_track(report), plot)
         info["plot"] = str(plot)
-        console.print(f"wrote {plot}")
+        console.print(f"wrote {plot}", markup=False)
     write_json(json_path, info)
 
 
