@@ -131,3 +131,78 @@ def test_units_in_brackets_survive_rich_markup(tmp_path):
     res = invoke("sensor", "simulate", "--out-dir", tmp_path / "s", "--levels", "1.3")
     assert res.exit_code == 0, res.output
     assert "accel_ref [m/s^2]" in " ".join(res.output.split())
+
+
+# ------------------------------------------------ item 18: drivesense --version
+def test_version_prints_the_package_version():
+    from importlib.metadata import version
+
+    import drivesense
+
+    res = invoke("--version")
+    assert res.exit_code == 0 and res.output == f"drivesense {version('drivesense')}\n"
+    assert res.output == "drivesense 0.1.0\n" and drivesense.__version__ == version("drivesense")
+
+
+# ------------------------------------------- items 2 and 10: --assume-si, --fs and --resample where traces are read
+TRACE_READERS = ("estimate", "friction", "train", "plot", "identify frf", "identify linear", "sensor calibrate",
+                 "sensor apply", "xml export", "archive add")
+
+
+def _commands():
+    """Every leaf command of the app: {'identify frf': click command, ...}."""
+    from typer.main import get_command
+
+    def walk(cmd, path):
+        if hasattr(cmd, "commands"):
+            for name, sub in cmd.commands.items():
+                yield from walk(sub, [*path, name])
+        else:
+            yield " ".join(path), cmd
+
+    return dict(walk(get_command(app), []))
+
+
+def test_every_command_that_reads_traces_has_the_trace_options():
+    commands = _commands()
+    for name in TRACE_READERS:
+        opts = {o for p in commands[name].params for o in p.opts}
+        assert {"--assume-si", "--fs", "--resample"} <= opts, name
+
+
+def test_header_without_units_is_refused_unless_assume_si(tmp_path):
+    """um and rev read as m and rad gave 3e10 N and exit 0."""
+    trace = tmp_path / "t.csv"
+    trace.write_text("time,current_ref,motor_angle,table_position\n" + "".join(
+        f"{k * 1e-3!r},{0.1 * (k % 5)},{k * 0.01},{k * 2.0}\n" for k in range(64)))
+    res = invoke("plot", trace, "-c", "table_position", "--out", tmp_path / "p.png")
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    msg = " ".join(res.output.split())
+    assert "'time', 'current_ref', 'motor_angle', 'table_position' have no unit" in msg and "--assume-si" in msg
+    assert "table_position [mm]" in msg and not (tmp_path / "p.png").exists()
+    res = invoke("plot", trace, "-c", "table_position", "--out", tmp_path / "p.png", "--assume-si")
+    assert res.exit_code == 0, res.output
+    res = invoke("xml", "export", trace, "--out", tmp_path / "t.xml", "--assume-si")
+    assert res.exit_code == 0, res.output
+    assert read_recording(tmp_path / "t.xml")["x_table_position"][1] == 2.0       # metres, as the user said
+
+
+def test_jittery_time_and_no_time_column_name_the_options_that_fix_them(tmp_path):
+    import numpy as np
+
+    t = np.arange(400) * 1e-3 + np.random.default_rng(0).uniform(-3e-4, 3e-4, 400) * (np.arange(400) % 399 > 0)
+    jitter = tmp_path / "jitter.csv"
+    jitter.write_text("time [s],force_x [N]\n" + "".join(f"{a!r},{float(np.sin(40 * a))!r}\n" for a in t.tolist()))
+    res = invoke("xml", "export", jitter, "--out", tmp_path / "j.xml")
+    assert res.exit_code == 2 and "--resample HZ" in " ".join(res.output.split()) and "rel_tol" not in res.output
+    res = invoke("xml", "export", jitter, "--out", tmp_path / "j.xml", "--resample", "1000")
+    assert res.exit_code == 0, res.output
+    rec = read_recording(tmp_path / "j.xml")
+    assert rec.fs == 1000.0 and any("--resample" in step for step in rec.meta["provenance"])
+    bare = tmp_path / "bare.csv"
+    bare.write_text("force_x [N]\n" + "".join(f"{k % 7}\n" for k in range(64)))
+    res = invoke("plot", bare, "-c", "force_x", "--out", tmp_path / "b.png")
+    msg = " ".join(res.output.split())
+    assert res.exit_code == 2 and "--fs HZ" in msg and "fs must be given" not in msg
+    res = invoke("plot", bare, "-c", "force_x", "--out", tmp_path / "b.png", "--fs", "500")
+    assert res.exit_code == 0, res.output

@@ -108,3 +108,30 @@ def test_cli_plot_bad_input_is_one_line(feed_rec, tmp_path, args, message):
     assert res.exit_code == 2 and message in res.output and "Traceback" not in res.output
     res = runner.invoke(app, ["plot", str(tmp_path / "missing.nc"), "-c", "x"])
     assert res.exit_code == 2
+
+
+def test_cli_plot_takes_bare_channel_names_like_estimate(feed_rec, tmp_path):
+    write_recording(feed_rec, tmp_path / "feed.nc")
+    res = runner.invoke(app, ["plot", str(tmp_path / "feed.nc"), "-c", "current", "--out", str(tmp_path / "c.png")])
+    assert res.exit_code == 0, res.output
+    assert _png(tmp_path / "c.png")[0] > 500
+    (tmp_path / "y.csv").write_text("time [ms],current_ref [A]\n" + "".join(f"{k},{k % 3}\n" for k in range(64)))
+    res = runner.invoke(app, ["plot", str(tmp_path / "y.csv"), "-c", "current_ref", "--axis-name", "y",
+                              "--out", str(tmp_path / "y.png")])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["plot", str(tmp_path / "y.csv"), "-c", "position", "--out", str(tmp_path / "n.png")])
+    assert res.exit_code == 2 and "x_position" in res.output
+
+
+def test_all_zero_channel_plots_without_a_warning(tmp_path, recwarn):
+    rec = Recording.from_arrays({"force_x": np.zeros(256), "x_table_position": np.linspace(0, 1e-3, 256)}, fs=1000.0)
+    for wavelength in (False, True):
+        fig = plot_trace_spectrum(rec, "force_x", wavelength=wavelength, feed_speed=0.01 if wavelength else None)
+        save_figure(fig, tmp_path / f"zero_{wavelength}.png")
+        low, high = fig.axes[1].get_ylim()
+        assert low < 0 < high and np.isfinite([low, high]).all()
+        assert any("constant" in t.get_text() for t in fig.axes[1].texts)
+    assert not [w for w in recwarn if issubclass(w.category, UserWarning)], [str(w.message) for w in recwarn]
+    write_recording(rec, tmp_path / "zero.nc")
+    res = runner.invoke(app, ["plot", str(tmp_path / "zero.nc"), "-c", "force_x", "--out", str(tmp_path / "z.png")])
+    assert res.exit_code == 0 and "Warning" not in res.output, res.output

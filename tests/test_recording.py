@@ -299,3 +299,40 @@ def test_json_files_are_strict_json(tmp_path):
     assert back == {"harmonic_error": None, "rows": [{"x": None}, [None, 1.5]], "array": [1.0, None], "n": 3,
                     "ok": True, "none": None}
     assert json.loads(strict_json(payload, indent=None), parse_constant=refuse) == back
+
+
+def test_read_csv_refuses_columns_without_units_unless_assume_si(tmp_path):
+    """'table_position,time,motor_angle' in um, ms and rev must not be read as m, s and rad silently."""
+    path = write(tmp_path, "time,table_position,motor_angle [rev],current_ref\n0,1,0,2\n1,2,0.5,2\n2,3,1,2\n")
+    with pytest.raises(UnitError) as err:
+        read_csv(path)
+    msg = str(err.value)
+    assert "trace.csv" in msg and "'time', 'table_position', 'current_ref'" in msg and "--assume-si" in msg
+    assert "table_position [mm]" in msg and "motor_angle" not in msg.split("have no unit")[0]
+    rec = read_csv(path, assume_si=True)
+    assert rec.fs == 1.0 and rec["x_table_position"][1] == 2.0 and rec.units("x_table_position") == "m"
+    assert "SI assumed (--assume-si): time, table_position, current_ref" in rec.meta["provenance"][-1]
+
+
+def test_read_csv_resamples_jittery_time_explicitly_and_takes_fs_without_time(tmp_path):
+    t = np.arange(200) * 1e-3
+    t[1:-1] += np.random.default_rng(1).uniform(-2e-4, 2e-4, 198)        # 20 % jitter
+    text = "time [s],force_x [N]\n" + "".join(f"{a!r},{3 * a!r}\n" for a in t.tolist())
+    path = write(tmp_path, text)
+    with pytest.raises(TimebaseError, match=r"not uniform.*--resample HZ"):
+        read_csv(path)
+    rec = read_csv(path, resample=1000.0)
+    assert rec.fs == 1000.0 and rec.n_samples == 200 and rec.t0 == 0.0
+    np.testing.assert_allclose(rec["force_x"], 3 * rec.time, atol=1e-12)    # linear data: exact
+    assert "resampled explicitly (--resample)" in rec.meta["provenance"][-1]
+    with pytest.raises(ConfigError, match="--fs HZ.*--resample HZ.*not both"):
+        read_csv(path, resample=1000.0, fs=1000.0)
+    bare = write(tmp_path, "force_x [N]\n1\n2\n3\n", name="bare.csv")
+    with pytest.raises(ConfigError, match="no 'time' column: give the sample rate with --fs HZ"):
+        read_csv(bare)
+    with pytest.raises(ConfigError, match="--resample needs time stamps; give the sample rate with --fs HZ"):
+        read_csv(bare, resample=10.0)
+    assert read_csv(bare, fs=10.0).fs == 10.0
+    back = write(tmp_path, "time [s],force_x [N]\n0,1\n0.002,1\n0.001,1\n", name="back.csv")
+    with pytest.raises(TimebaseError, match="does not increase at line 4"):
+        read_csv(back, resample=1000.0)

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike
 
 from .errors import ConfigError, TimebaseError
 
-__all__ = ["validate_timebase", "check_timebase", "check_fs", "format_time"]
+__all__ = ["validate_timebase", "check_timebase", "check_fs", "format_time", "resample_uniform"]
 
 
 def format_time(t: float, fs: float) -> str:
@@ -55,6 +55,80 @@ def check_fs(fs: Any) -> float:
     if not (math.isfinite(fs) and fs > 0):
         raise TimebaseError(f"fs must be a positive finite number of Hz, got {fs!r}")
     return fs
+
+
+def _check_increasing(t: np.ndarray, name: str, at) -> None:
+    """TimebaseError unless the 1-D stamps `t` [s] are at least 2, finite and strictly increasing.
+
+    ``at(i)`` names stamp `i` in messages.
+    """
+    if t.size < 2:
+        raise TimebaseError(f"{name}: {t.size} time value(s); a time base needs at least 2")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise TimebaseError(f"{name}: {bad.size} non-finite time value(s) "
+                            f"(first {float(t[bad[0]])!r} at {at(int(bad[0]))})")
+    nonpos = np.flatnonzero(np.diff(t) <= 0)
+    if nonpos.size:
+        i = int(nonpos[0]) + 1
+        raise TimebaseError(f"{name}: time does not increase at {at(i)}: t={t[i]:.10g} s "
+                            f"follows t={t[i - 1]:.10g} s at {at(i - 1)}")
+
+
+def resample_uniform(time: ArrayLike, channels: dict, fs: float, *, name: str = "time",
+                     rows: ArrayLike | None = None, row_label: str = "sample") -> tuple[float, dict, str]:
+    """Resample irregularly stamped channels onto a uniform grid, explicitly (linear interpolation).
+
+    The grid starts at the first stamp and holds every ``t0 + k / fs`` up to
+    the last stamp.  No anti-alias filter is applied: choose `fs` at or
+    above the rate the data were logged at.
+
+    Parameters
+    ----------
+    time : array_like
+        Time stamps [s], 1-D, finite and strictly increasing (jitter allowed).
+    channels : dict of str to array_like
+        Channel name -> samples at the stamps [any unit: kept].
+    fs : float
+        Rate of the uniform grid [Hz].
+    name : str, optional
+        What the time stamps are, to start error messages.
+    rows : array_like of int, optional
+        Label of each stamp in messages (e.g. file line numbers); default the
+        0-based sample index.
+    row_label : str, optional
+        Word for `rows` in messages (``"sample"``, ``"line"``...).
+
+    Returns
+    -------
+    t0 : float
+        Time of the first grid sample [s].
+    resampled : dict of str to ndarray
+        The channels on the grid.
+    note : str
+        What was done, for the provenance.
+
+    Raises
+    ------
+    TimebaseError
+        Fewer than 2 stamps, non-finite or non-increasing stamps (naming the
+        row), a bad `fs`, or a span shorter than two samples at `fs`.
+    """
+    fs = check_fs(fs)
+    t = np.asarray(time, dtype=np.float64)
+    label = np.arange(t.size) if rows is None else np.asarray(rows)
+    _check_increasing(t, name, lambda i: f"{row_label} {label[i]}")
+    n = int(math.floor((t[-1] - t[0]) * fs * (1 + 1e-12))) + 1
+    if n < 2:
+        raise TimebaseError(f"{name}: the stamps span {t[-1] - t[0]:.6g} s, less than two samples at "
+                            f"--resample {fs:g} Hz")
+    grid = t[0] + np.arange(n) / fs
+    out = {k: np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in channels.items()}
+    d = np.diff(t)
+    note = (f"resampled explicitly (--resample) from {t.size} stamps (median step {float(np.median(d)):.6g} s, "
+            f"steps {float(d.min()):.6g}..{float(d.max()):.6g} s) to a uniform grid at fs={fs:.12g} Hz, "
+            f"{n} samples, by linear interpolation")
+    return float(t[0]), out, note
 
 
 def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike | None,
@@ -97,18 +171,8 @@ def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike |
         return f"{row_label} {label[i]}"
 
     n = t.size
-    if n < 2:
-        raise TimebaseError(f"{name}: {n} time value(s); a time base needs at least 2")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise TimebaseError(f"{name}: {bad.size} non-finite time value(s) "
-                            f"(first {float(t[bad[0]])!r} at {at(int(bad[0]))})")
+    _check_increasing(t, name, at)
     d = np.diff(t)
-    nonpos = np.flatnonzero(d <= 0)
-    if nonpos.size:
-        i = int(nonpos[0]) + 1
-        raise TimebaseError(f"{name}: time does not increase at {at(i)}: t={t[i]:.10g} s "
-                            f"follows t={t[i - 1]:.10g} s at {at(i - 1)}")
     med = float(np.median(d))
     jit = np.abs(d - med) / med
     worst = int(np.argmax(jit))
@@ -116,8 +180,7 @@ def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike |
         raise TimebaseError(
             f"{name}: sampling is not uniform: the step to {at(worst + 1)} is {d[worst]:.6g} s, "
             f"the median step is {med:.6g} s ({100 * jit[worst]:.3g} % jitter, "
-            f"{100 * rel_tol:.3g} % allowed); resample explicitly (and record it in the "
-            "provenance) or raise rel_tol")
+            f"{100 * rel_tol:.3g} % allowed); resample it explicitly onto a uniform grid (--resample HZ)")
     jmax = float(jit[worst])
     fs = float(f"{(n - 1) / (t[-1] - t[0]):.12g}")  # drop float noise, e.g. from ms -> s
     dev = (t - (t[0] + np.arange(n) / fs)) * fs
@@ -125,7 +188,8 @@ def check_timebase(time: ArrayLike, rel_tol: float, name: str, rows: ArrayLike |
     if abs(dev[worst]) > 0.5:
         raise TimebaseError(
             f"{name}: timestamps drift from a uniform grid at fs={fs:.12g} Hz by "
-            f"{dev[worst]:+.3g} samples at {at(worst)}; resample explicitly or split the data")
+            f"{dev[worst]:+.3g} samples at {at(worst)}; resample it explicitly onto a uniform grid "
+            "(--resample HZ) or split the data")
     return fs, jmax
 
 

@@ -10,7 +10,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, key_column, write_json
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, key_column, trace_reader,
+                                   write_json)
 
 __all__ = ["register", "archive_app"]
 
@@ -64,14 +65,18 @@ def add(
     files: Annotated[list[Path], typer.Argument(help="Experiment files (.xml) or recordings (.nc, .csv).")],
     archive: ArchiveOpt = None,
     json_path: JsonOpt = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Import experiments; each import is atomic (all or nothing)."""
+    read_trace = trace_reader(fs, resample, assume_si)
     rows = []
     with _open(archive) as store:
         for f in files:
             if not Path(f).is_file():
                 raise FileNotFoundError(2, "file not found", str(f))
-            eid = store.add(f)
+            eid = store.add(read_trace(f) if Path(f).suffix.lower() == ".csv" else f)
             rows.append({"file": str(f), "id": eid})
             if json_path is None:
                 console.print(f"added {f} as {eid}", markup=False, highlight=False)

@@ -6,7 +6,7 @@ import contextlib
 import functools
 import warnings
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
@@ -15,7 +15,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
-           "read_trace", "build_estimator", "save_recording", "show_warnings"]
+           "read_trace", "trace_reader", "build_estimator", "save_recording", "show_warnings", "AssumeSiOpt",
+           "FsOpt", "ResampleOpt"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -91,11 +92,36 @@ def accuracy_table(rows: list[dict], title: str) -> Table:
     return table
 
 
-def read_trace(path: Path, axis_name: str = "x"):
-    """Read a CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment."""
+#: ``--assume-si``, ``--fs HZ`` and ``--resample HZ``: the options of every command that reads traces
+#: (give them to :func:`read_trace` or :func:`trace_reader`).
+AssumeSiOpt = Annotated[bool, typer.Option(
+    "--assume-si", help="CSV traces: read columns without a unit in the header as SI (m, rad, A, s...); "
+                        "without this they are refused.")]
+FsOpt = Annotated[Optional[float], typer.Option(
+    "--fs", metavar="HZ", help="CSV traces without a time column: their sample rate [Hz].")]
+ResampleOpt = Annotated[Optional[float], typer.Option(
+    "--resample", metavar="HZ", help="CSV traces with jittery time stamps: resample them explicitly onto a "
+                                     "uniform grid at HZ [Hz] (linear interpolation, noted in the provenance).")]
+
+
+def read_trace(path: Path, axis_name: str = "x", *, fs: Optional[float] = None, resample: Optional[float] = None,
+               assume_si: bool = False):
+    """Read a CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment.
+
+    ``fs``, ``resample`` and ``assume_si`` are the options ``--fs``, ``--resample`` and ``--assume-si``
+    (:data:`FsOpt`, :data:`ResampleOpt`, :data:`AssumeSiOpt`); they concern CSV traces only (a .nc or .xml
+    recording carries its time base and units).
+    """
     from drivesense.io import read_recording
 
-    return read_recording(path, axis=axis_name) if Path(path).suffix.lower() == ".csv" else read_recording(path)
+    if Path(path).suffix.lower() != ".csv":
+        return read_recording(path)
+    return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si)
+
+
+def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, assume_si: bool = False):
+    """:func:`read_trace` with a command's ``--fs``, ``--resample`` and ``--assume-si`` bound: ``read(path[, axis])``."""
+    return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si)
 
 
 #: CLI option of each kind of method configuration, and the registry keyword it fills.

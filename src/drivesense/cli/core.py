@@ -10,8 +10,8 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (accuracy_table, build_estimator, console, friendly, progress_bar, read_trace,
-                                   save_recording, warn, write_json)
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator, console,
+                                   friendly, progress_bar, save_recording, trace_reader, warn, write_json)
 
 __all__ = ["register"]
 
@@ -167,11 +167,15 @@ def estimate(
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
     axes_file: Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")] = None,
     model_dir: Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")] = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
     from drivesense.io import write_csv
 
+    read_trace = trace_reader(fs, resample, assume_si)
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
     zoom = _parse_window(plot_window, "--plot-window") if plot_window is not None else None
@@ -185,7 +189,7 @@ def estimate(
         if zoom is not None:
             raise ConfigError(f"--plot-window applies to the ball-screw methods; --method {method} plots the "
                               "whole trace per axis")
-        return estimate_model(trace, est, out, json_path, plot)
+        return estimate_model(trace, est, out, json_path, plot, read=read_trace)
     signal = est.signal
     rec = read_trace(trace, axis_name)
     if idle and tare:
@@ -260,6 +264,9 @@ def friction(
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG (map per run + wavelength spectrum).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Friction map from idling runs: position dependence, repeatability, dominant wavelengths."""
     import numpy as np
@@ -270,6 +277,7 @@ def friction(
     est = build_estimator(method, axis_file=axis_file, axis_name=axis_name)
     if est.drive != "ballscrew":
         raise ConfigError(f"friction maps are built by the ball-screw methods; --method {method} is not one")
+    read_trace = trace_reader(fs, resample, assume_si)
     est.fit([read_trace(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
     fmap = est.friction_map
     peaks = dominant_wavelengths(*wavelength_spectrum(fmap.force, fmap.position), 5)

@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, read_trace, write_json
+from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, read_trace, write_json
 
 __all__ = ["register", "parse_fix"]
 
@@ -43,6 +43,9 @@ def identify_frf(
     fmax: Annotated[float, typer.Option(help="Highest frequency fitted [Hz].")] = 2000.0,
     nperseg: Annotated[int, typer.Option(help="Welch segment length [samples].")] = 8192,
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Fit J_r, M_t, C_t, C_k, D_r, K_r and T_b to the measured FRFs and write AXIS.toml."""
     from drivesense.errors import ConfigError
@@ -56,7 +59,7 @@ def identify_frf(
                           "screw lead [m] are catalogue values; without them the fit has no physical scale")
     K_t, lead = given.pop("K_t"), given.pop("lead")
     chain = {k: given.pop(k, v) for k, v in CATALOGUE_DEFAULTS.items()}
-    rec = read_trace(trace, axis_name)
+    rec = read_trace(trace, axis_name, fs=fs, resample=resample, assume_si=assume_si)
     measured = measure_frf(rec, K_t=K_t, lead=lead, axis_name=axis_name, nperseg=nperseg, fmin=fmin, fmax=fmax)
     fit = fit_frf(measured, K_t=K_t, lead=lead, fixed=given, **chain)
     write_axis_file(out, fit.axis, fit.signal)

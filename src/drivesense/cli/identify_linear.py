@@ -9,7 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, read_trace, show_warnings, write_json
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, read_trace, show_warnings,
+                                   trace_reader, write_json)
 
 __all__ = ["register", "parse_motor_constants", "estimate_model"]
 
@@ -46,15 +47,22 @@ def identify_linear(
     table_size: Annotated[int, typer.Option(help="Points of the cogging table over one pole pitch.")] = 64,
     presliding: Annotated[bool, typer.Option("--presliding/--no-presliding",
                                              help="Step 5: identify the presliding distance (beyond the paper).")] = True,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse when the speeds do not determine the Stribeck "
+                                         "curve (default: Coulomb + viscous friction, marked undetermined).")] = False,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Identify restoring force, cogging, Stribeck friction, masses and presliding of X/Y/Z and write AXES.toml."""
     from drivesense.identify.linear_axis import run_identification
     from drivesense.io.axes_file import write_axes_file
 
+    read_trace = trace_reader(fs, resample, assume_si)
     recs = [read_trace(p) for p in air_moves]
     with show_warnings():
         report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,
-                                    pole_pitch=pole_pitch, table_size=table_size, presliding=presliding)
+                                    pole_pitch=pole_pitch, table_size=table_size, presliding=presliding,
+                                    strict=strict)
     model = report.model
     write_axes_file(out, model, header=f"identified by the four-step method from {len(recs)} air move(s)")
     stacked = model.stacked_masses()
@@ -68,8 +76,8 @@ def identify_linear(
             ("own mass m [kg]", lambda ax, st, a: f"{ax.m:.1f}"),
             ("moved mass (Eq. 2) [kg]", lambda ax, st, a: f"{stacked[a]:.1f}"),
             ("F_C [N]", lambda ax, st, a: f"{ax.F_C:.2f}"),
-            ("F_br [N]", lambda ax, st, a: f"{ax.F_br:.2f}"),
-            ("v_s [mm/s]", lambda ax, st, a: f"{ax.v_s * 1e3:.3g}"),
+            ("F_br [N]", lambda ax, st, a: f"{ax.F_br:.2f}" + ("*" if "F_br" in ax.undetermined else "")),
+            ("v_s [mm/s]", lambda ax, st, a: "undetermined" if "v_s" in ax.undetermined else f"{ax.v_s * 1e3:.3g}"),
             ("sigma [N s/m]", lambda ax, st, a: f"{ax.sigma:.4g}"),
             ("cogging 1st harmonic [N]", lambda ax, st, a: f"{st['cogging']['amplitudes_n'][0]:.2f}"),
             ("presliding x_pre [um] (step 5)", lambda ax, st, a: f"{ax.x_pre * 1e6:.1f}" if ax.x_pre > 0
@@ -78,6 +86,8 @@ def identify_linear(
                                                          f"{st['friction']['rms_n']:.2f} / {st['mass']['rms_n']:.2f}")]
     for label, fmt in rows:
         table.add_row(escape(label), *(fmt(model.axis(a), report.steps[a], a) for a in ("x", "y", "z")))
+    if any(model.axis(a).undetermined for a in ("x", "y", "z")):
+        table.caption = "* undetermined by the air moves: F_br = F_C (Coulomb + viscous friction)"
     console.print(table)
     console.print("seconds per axis: " + ", ".join(f"{k} {v:.3f}" for k, v in report.seconds.items()), markup=False)
     console.print(f"wrote {out}", markup=False)
@@ -90,8 +100,10 @@ def identify_linear(
 
 
 def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None,
-                   plot: Optional[Path] = None) -> None:
+                   plot: Optional[Path] = None, read=read_trace) -> None:
     """``drivesense estimate TRACE --method model|lstm|hybrid``: X/Y/Z force from a 3-axis NC trace.
+
+    ``read`` reads the trace (:func:`~drivesense.cli.common.trace_reader` of the command's options).
 
     ``est`` is a ModelBased, LSTM or Hybrid estimator (anything with ``name``
     and ``estimate(recording)`` returning ``force_x/y/z``).
@@ -99,7 +111,7 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     from drivesense.io import write_csv
     from drivesense.score import score_estimate
 
-    rec = read_trace(trace)
+    rec = read(trace)
     force = est.estimate(rec)
     write_csv(force, out)
     info: dict = {"method": est.name, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,

@@ -9,7 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, err_console, friendly, progress_bar, write_json
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, err_console, friendly, progress_bar,
+                                   trace_reader, write_json)
 
 __all__ = ["register"]
 
@@ -67,12 +68,15 @@ def train(
     presliding_um: Annotated[float, typer.Option(help="Nominal presliding distance of the guides [um] for the "
                                                       "presliding-state inputs (0: left out).")] = 10.0,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the training record here.")] = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Train one network per force component (and save state_dicts + config)."""
     from drivesense.errors import ConfigError
     from drivesense.learn import Hybrid, LSTM
     from drivesense.learn.dataset import load_dataset
-    from drivesense.learn.train import TrainConfig, require_torch
+    from drivesense.learn.model import TrainConfig, require_torch
 
     if epochs < 1:
         raise ConfigError(f"--epochs must be >= 1, got {epochs} (0 epochs would save an untrained model)")
@@ -86,7 +90,7 @@ def train(
         from drivesense.io.axes_file import read_axes_file
 
         kwargs["model_based"] = read_axes_file(axes)
-    runs = [rec for _, rec in load_dataset(data)]
+    runs = [rec for _, rec in load_dataset(data, read=trace_reader(fs, resample, assume_si))]
     config = TrainConfig(epochs=epochs, seed=seed, position_harmonics=harmonics, pole_pitch=pole_pitch_mm * 1e-3,
                          linear_skip=skip, skip_taps=skip_taps, presliding_length=presliding_um * 1e-6)
     est = (Hybrid if kind == "hybrid" else LSTM)(config=config)

@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from drivesense.cli.common import console, friendly
+from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, trace_reader
 
 __all__ = ["register", "feed_speed_of"]
 
@@ -70,8 +70,7 @@ def _moving_speed(v: np.ndarray, fs: float, name: str) -> tuple[float, str]:
     return float(np.median(moving)), f"median speed of {name} while moving"
 
 
-def _read(file: Path, measurement: Optional[str]):
-    from drivesense.cli.common import read_trace
+def _read(file: Path, measurement: Optional[str], read_trace):
     from drivesense.errors import ConfigError
 
     if file.suffix.lower() == ".xml":
@@ -82,6 +81,16 @@ def _read(file: Path, measurement: Optional[str]):
     if measurement is not None:
         raise ConfigError("--measurement applies to .xml experiment files only")
     return read_trace(file)
+
+
+def _channel_name(rec, channel: str, axis_name: str) -> str:
+    """The recording's channel for ``--channel``: a bare axis name (``current_ref``) gets the ``--axis-name``
+    prefix, as ``estimate`` reads it."""
+    from drivesense.io.csv import BARE_AXIS_CHANNELS
+
+    if channel not in rec.channels and channel in BARE_AXIS_CHANNELS:
+        return f"{axis_name}_{channel}"
+    return channel
 
 
 def plot(
@@ -95,12 +104,20 @@ def plot(
     max_freq: Annotated[Optional[float], typer.Option(help="Upper frequency [Hz] of the spectrum.")] = None,
     measurement: Annotated[Optional[str], typer.Option(help="Measurement of an .xml file (name or index).")]
     = None,
+    axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of bare channel names "
+                                                               "(-c current_ref plots x_current_ref).")] = "x",
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Time trace and amplitude spectrum of one channel in one PNG."""
+    from functools import partial
+
     from drivesense.errors import ConfigError
     from drivesense.plot import plot_trace_spectrum, save_figure
 
-    rec = _read(file, measurement)
+    rec = _read(file, measurement, partial(trace_reader(fs, resample, assume_si), axis_name=axis_name))
+    channel = _channel_name(rec, channel, axis_name)
     out = out or file.with_name(f"{file.stem}_{channel}{'_wavelength' if wavelength else ''}.png")
     rec.require(channel)
     how = "given"

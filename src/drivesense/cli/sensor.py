@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (console, err_console, friendly, key_column, progress_bar, read_trace,
-                                   save_recording, write_json)
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, err_console, friendly, key_column,
+                                   progress_bar, save_recording, trace_reader, write_json)
 
 __all__ = ["register", "sensor_app"]
 
@@ -70,10 +70,14 @@ def calibrate(
     band: Annotated[str, typer.Option(help="Band to restore, LOW:HIGH [Hz].")] = "100:4000",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
     plot: Annotated[Optional[Path], typer.Option(help="Write the ratio spectrum (Fig. 6 style) here.")] = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Linearity check, ratio spectrum and a regularised deconvolution filter from paired recordings."""
     from drivesense.identify.sensor import calibrate_sensor
 
+    read_trace = trace_reader(fs, resample, assume_si)
     recs = [read_trace(p) for p in pairs]
     cal = calibrate_sensor(recs, band=_band(band), sensor_channel=sensor_channel,
                            reference_channel=reference_channel)
@@ -118,6 +122,9 @@ def apply(
     reference_channel: Annotated[str, typer.Option(help="Reference channel, if present, to score against.")] =
     "accel_ref",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Deconvolve the cheap sensor's signal into acceleration in m/s^2 (channel 'acceleration')."""
     import numpy as np
@@ -125,7 +132,7 @@ def apply(
     from drivesense.identify.sensor import SensorCalibration, deconvolution_residual
 
     cal = SensorCalibration.load(filter_path)
-    rec = read_trace(recording)
+    rec = trace_reader(fs, resample, assume_si)(recording)
     result = cal.apply(rec, channel=sensor_channel)
     save_recording(result, out, parents=True)
     acc = result["acceleration"]

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from drivesense.cli.common import console, friendly, write_json
+from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, trace_reader, write_json
 
 __all__ = ["register", "xml_app"]
 
@@ -43,11 +43,14 @@ def export(
     dtype: Annotated[str, typer.Option(help="base64 precision: float64 (bit-exact) or float32.")] = "float64",
     experimenter: Annotated[Optional[str], typer.Option(
         help="Experimenter named when the metadata names nobody (default: your login).")] = None,
+    assume_si: AssumeSiOpt = False,
+    fs: FsOpt = None,
+    resample: ResampleOpt = None,
 ) -> None:
     """Write recordings as one experiment file (atomically)."""
-    from drivesense.cli.common import read_trace
     from drivesense.io.xml_format import write_xml
 
+    read_trace = trace_reader(fs, resample, assume_si)
     recs = [read_trace(p) for p in recordings]
     write_xml(recs, out, encoding=encoding, dtype=dtype, experimenter=experimenter)
     console.print(f"wrote {out}: {len(recs)} measurement(s)", markup=False, highlight=False)

@@ -26,6 +26,7 @@ import numpy as np
 
 from drivesense import units as _units
 from drivesense.errors import ConfigError, IdentificationError, InvalidSignalError, UnitError
+from drivesense.io.csv import read_csv_text
 from drivesense.machine.cutting_power import CutConditions, CutTable, finite_vector, force_per_depth
 
 __all__ = ["SeeSawWarning", "TangentialFit", "CutTable", "fit_tangential_coefficients", "calibrate_from_power",
@@ -282,7 +283,7 @@ def read_unit_table(path, spec: dict[str, str | None]) -> tuple[dict[str, np.nda
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"table {path} not found")
-    lines = [(i + 1, ln) for i, ln in enumerate(path.read_text(encoding="utf-8-sig").splitlines())
+    lines = [(i + 1, ln) for i, ln in enumerate(read_csv_text(path).splitlines())
              if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise InvalidSignalError(f"{path.name}: empty file (no header line)")

@@ -5,10 +5,13 @@ Format
 - Lines starting with ``#`` and blank lines are skipped; the first other line
   is the header.  Delimiter: ``,`` (or ``;`` / tab, detected from the header).
 - Each header cell is ``name [unit]``, e.g. ``time [ms]``,
-  ``table_position [mm]``, ``force_x [N]``.  Without brackets the unit is the
-  SI unit of the channel's quantity (``1`` for names outside the data model).
+  ``table_position [mm]``, ``force_x [N]``, ``ratio [1]``.  A column without
+  brackets is refused (values in um or rev read as SI give forces a million
+  times off), unless ``assume_si`` (``--assume-si``) says the file is in the
+  SI unit of each channel's quantity (``1`` for names outside the data model).
 - A ``time`` column (any time unit) gives the time base; it must be uniform
-  within ``rel_tol``.  Without one, ``fs`` must be given.
+  within ``rel_tol``, or be resampled explicitly (``resample``,
+  ``--resample HZ``).  Without one, ``fs`` (``--fs HZ``) must be given.
 - Bare axis channel names (``current_ref``, ``motor_angle``,
   ``table_position``...) get the prefix ``{axis}_``.
 - The Recording's metadata (``name``, ``nc_delay_s``, ``score_window``,
@@ -41,7 +44,7 @@ from ..metadata import meta_to_json
 if TYPE_CHECKING:  # pragma: no cover
     from ..recording import Recording
 
-__all__ = ["read_csv", "write_csv", "sidecar_path", "BARE_AXIS_CHANNELS"]
+__all__ = ["read_csv", "write_csv", "sidecar_path", "read_csv_text", "BARE_AXIS_CHANNELS"]
 
 #: Column names that are prefixed with ``{axis}_`` when read.
 BARE_AXIS_CHANNELS = ("current_ref", "current", "motor_angle", "table_position",
@@ -59,6 +62,47 @@ def _decode(raw: bytes) -> str:
 
 
 _META_PREFIX = "# meta:"
+#: Bytes no text CSV holds: C0 controls other than tab, line feed, vertical tab, form feed and
+#: carriage return, and DEL (UTF-16, binary files, random bytes).
+_NOT_TEXT = re.compile(rb"[\x00-\x08\x0e-\x1f\x7f]")
+_SNIFF_BYTES = 1 << 16
+
+
+def _require_text(path: Path, head: bytes | None = None) -> None:
+    """FileNotFoundError, or InvalidSignalError naming the file unless its start looks like text."""
+    if not path.is_file():
+        raise FileNotFoundError(errno.ENOENT, "CSV file not found", str(path))
+    if head is None:
+        with open(path, "rb") as fh:
+            head = fh.read(_SNIFF_BYTES)
+    if _NOT_TEXT.search(head[:_SNIFF_BYTES]):
+        raise InvalidSignalError(f"{path.name}: not a text CSV file (binary or not UTF-8)")
+
+
+def read_csv_text(path: str | Path) -> str:
+    """The text of a CSV file (UTF-8 with or without BOM, else Latin-1), refusing binary files.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    InvalidSignalError
+        The file is binary (or text in another encoding, e.g. UTF-16): one line naming it.
+    """
+    path = Path(path)
+    _require_text(path)
+    raw = path.read_bytes()
+    _require_text(path, raw)
+    return _decode(raw)
 
 
 def sidecar_path(path: str | Path) -> Path:
@@ -94,8 +138,7 @@ def _read_sidecar(path: Path) -> dict:
 def _find_header(path: Path) -> tuple[int, str, dict]:
     """(1-based line number, text) of the header -- the first non-blank, non-comment line --
     and the metadata of the ``# meta: {...}`` comment lines before it."""
-    if not path.is_file():
-        raise FileNotFoundError(errno.ENOENT, "CSV file not found", str(path))
+    _require_text(path)
     meta: dict = {}
     with open(path, "rb") as fh:
         for lineno, raw in enumerate(fh, start=1):
@@ -156,7 +199,8 @@ def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str)
 
 def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | None = None,
              fs: float | None = None, rel_tol: float = 1e-3,
-             meta: Mapping | None = None) -> Recording:
+             meta: Mapping | None = None, assume_si: bool = False,
+             resample: float | None = None) -> Recording:
     """Read a CSV file with a ``name [unit]`` header into a Recording (SI).
 
     Parameters
@@ -178,6 +222,14 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         Metadata for the Recording, over the file's own (its sidecar
         ``FILE.csv.json``, or the ``# meta:`` line of older files); ``name``
         defaults to the file stem.
+    assume_si : bool, optional
+        Read columns without a ``[unit]`` in the SI unit of their quantity
+        (``--assume-si``); by default they are refused.
+    resample : float, optional
+        Resample the channels explicitly onto a uniform grid at this rate [Hz]
+        (``--resample HZ``: linear interpolation between the time stamps,
+        noted in the provenance), for time columns with jitter.  Needs a time
+        column; not with `fs`.
 
     Returns
     -------
@@ -197,13 +249,21 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     UnitError
         Unknown unit, or a unit that does not fit the channel (naming the column).
     ConfigError
-        No time column and no `fs`; duplicate channels; bad `axis`.
+        No time column and no `fs`; duplicate channels; bad `axis`; `resample`
+        without a time column or with `fs`.
+    UnitError
+        Columns without a unit (naming them), unless `assume_si`.
     """
     from ..recording import Recording
-    from ..timebase import check_fs, check_timebase
+    from ..timebase import check_fs, check_timebase, resample_uniform
 
     path = Path(path)
     fs = None if fs is None else check_fs(fs)
+    if resample is not None:
+        if fs is not None:
+            raise ConfigError("give --fs HZ (the rate of a trace without a time column) or --resample HZ "
+                              "(a new uniform grid for a time column), not both")
+        resample = check_fs(resample)
     if axis not in _AXES:
         raise ConfigError(f"axis must be one of {_AXES}, got {axis!r}")
     mapping = dict(mapping or {})
@@ -214,7 +274,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     # --- columns: names, units, conversions (checked before the data are parsed)
     columns: list[tuple[str, str, _units.UnitInfo]] = []  # (canonical name, header, unit)
     seen: dict[str, str] = {}
-    renamed, converted = [], []
+    renamed, converted, no_unit = [], [], []
     time_col = None
     for j, cell in enumerate(header):
         m = _HEADER_RE.match(cell)
@@ -234,6 +294,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         seen[name] = cell
         quantity = _units.quantity_of_channel(name)
         if unit is None:
+            no_unit.append(cell)
             unit = _units.si_unit(quantity) if quantity else "1"
         try:
             info = _units.unit_info(unit, quantity=quantity, name=name)
@@ -246,9 +307,16 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         columns.append((name, cell, info))
     if all(c[0] == "time" for c in columns):
         raise InvalidSignalError(f"{path.name}: no channel columns (header: {header_line!r})")
+    if no_unit and not assume_si:
+        raise UnitError(f"{path.name}: column(s) {', '.join(repr(c) for c in no_unit)} have no unit: give units "
+                        "in the header ('table_position [mm]', 'time [ms]') or pass --assume-si to read them as SI "
+                        "(m, rad, A, s...)")
+    if time_col is None and resample is not None:
+        raise ConfigError(f"{path.name}: no 'time' column to resample: --resample needs time stamps; give the "
+                          "sample rate with --fs HZ instead")
     if time_col is None and fs is None:
-        raise ConfigError(f"{path.name}: no 'time' column, so fs (sampling rate in Hz) must be "
-                          f"given (columns: {', '.join(header)})")
+        raise ConfigError(f"{path.name}: no 'time' column: give the sample rate with --fs HZ "
+                          f"(columns: {', '.join(header)})")
 
     # --- data
     values = _parse_values(path, header_lineno, header, delim)
@@ -274,7 +342,16 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
             channels[name] = col
             si_units[name] = _units.SI_UNITS[info.quantity]
 
-    if time_col is not None:
+    if time_col is not None and resample is not None:
+        where = f"{path.name}, column {header[time_col]!r}"
+        try:
+            t0, channels, timebase = resample_uniform(time, channels, resample, name=where)
+        except TimebaseError:  # again, with file line numbers in the message
+            resample_uniform(time, channels, resample, name=where,
+                             rows=_data_linenos(_lines(path), header_lineno), row_label="line")
+            raise
+        fs = resample
+    elif time_col is not None:
         where = f"{path.name}, column {header[time_col]!r}"
         try:
             fs_t, jitter = check_timebase(time, rel_tol, where, None, "sample")
@@ -282,8 +359,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
             check_timebase(time, rel_tol, where, _data_linenos(_lines(path), header_lineno), "line")
             raise
         if fs is not None and abs(fs - fs_t) > rel_tol * fs:
-            raise TimebaseError(f"{where}: time column gives fs={fs_t:.12g} Hz, but fs={fs!r} Hz "
-                                "was given")
+            raise TimebaseError(f"{where}: time column gives fs={fs_t:.12g} Hz, but --fs {fs:g} was given")
         fs, t0 = fs_t, float(time[0])
         timebase = (f"fs={fs:.12g} Hz from column {header[time_col]!r} "
                     f"(max step jitter {100 * jitter:.3g} %)")
@@ -292,7 +368,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         timebase = f"fs={float(fs):.12g} Hz given (no time column)"
 
     parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
-            ([f"converted {', '.join(converted)}"] if converted else []) + [timebase]
+            ([f"converted {', '.join(converted)}"] if converted else []) + \
+            ([f"no unit, SI assumed (--assume-si): {', '.join(no_unit)}"] if no_unit else []) + [timebase]
     meta = {"name": path.stem, **file_meta, **_read_sidecar(path), **dict(meta or {})}
     rec = Recording.from_arrays(channels, fs=fs, t0=t0, units=si_units, meta=meta)
     return rec.with_provenance(f"read_csv {path.name}: " + "; ".join(parts))

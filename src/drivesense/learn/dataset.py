@@ -277,7 +277,7 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
     return index
 
 
-def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
+def load_dataset(folder, *, read=None) -> list[tuple[RunSpec | None, Recording]]:
     """Load a dataset folder: a built one (``index.json``) or any folder of recordings.
 
     Parameters
@@ -286,6 +286,10 @@ def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
         Built dataset, or a user's folder of ``.nc`` / ``.csv`` traces with
         canonical channel names and reference ``force_{ax}`` channels (their
         split is then decided by :func:`load_folder`).
+    read : callable, optional
+        Reads one trace of a user's folder, ``read(path) -> Recording``
+        (default :func:`drivesense.io.read_recording`), e.g. with the CLI's
+        ``--fs``/``--resample``/``--assume-si``.
 
     Returns
     -------
@@ -294,7 +298,7 @@ def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
     folder = Path(folder)
     index = folder / "index.json"
     if not index.exists():
-        return load_folder(folder)
+        return load_folder(folder, read=read)
     data = json.loads(index.read_text())
     out = []
     for entry in data["runs"]:
@@ -303,7 +307,8 @@ def load_dataset(folder) -> list[tuple[RunSpec | None, Recording]]:
     return out
 
 
-def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0) -> list[tuple[RunSpec | None, Recording]]:
+def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0,
+                read=None) -> list[tuple[RunSpec | None, Recording]]:
     """A user's own traces: every ``.nc`` and ``.csv`` in ``folder``; a seeded share goes to validation.
 
     Traces keep their sample rate here; :mod:`drivesense.learn.train` resamples
@@ -318,6 +323,9 @@ def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0) -> list[tup
         more than two traces).
     seed : int, optional
         Seed of the draw.
+    read : callable, optional
+        Reads one trace, ``read(path) -> Recording`` (default
+        :func:`drivesense.io.read_recording`).
 
     Returns
     -------
@@ -337,6 +345,6 @@ def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0) -> list[tup
     val = set(rng.choice(len(files), n_val, replace=False).tolist()) if n_val else set()
     out = []
     for i, path in enumerate(files):
-        rec = read_recording(path)
+        rec = (read or read_recording)(path)
         out.append((None, rec.with_meta(split="val" if i in val else "train")))
     return out

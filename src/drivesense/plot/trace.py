@@ -78,18 +78,25 @@ def plot_trace_spectrum(rec: Recording, channel: str, *, wavelength: bool = Fals
     ax_t.set_ylabel(f"{channel} [{unit}]")
     ax_t.grid(alpha=0.3)
     keep = f > 0
+    flat = not np.any(amp[keep] > 0)        # a constant channel: nothing to draw on a log scale
+    if flat:
+        ax_f.text(0.5, 0.5, f"{channel} is constant ({y[0]:.6g} {unit}): its spectrum is zero above 0 Hz",
+                  transform=ax_f.transAxes, ha="center", va="center", fontsize=9)
     if wavelength:
         lam = feed_speed / f[keep] * 1e3
-        ax_f.loglog(lam, amp[keep], lw=0.8, color="tab:red")
+        (ax_f.semilogx if flat else ax_f.loglog)(lam, amp[keep], lw=0.8, color="tab:red")
         ax_f.set_xlabel(f"wavelength = feed speed / frequency [mm]   (feed {feed_speed * 6e4:.4g} mm/min, "
                         f"{feed_source})")
         x_peak = lam
     else:
         sel = keep & (f <= (max_freq or 0.5 * rec.fs))
-        ax_f.semilogy(f[sel], amp[sel], lw=0.8, color="tab:red")
+        (ax_f.plot if flat else ax_f.semilogy)(f[sel], amp[sel], lw=0.8, color="tab:red")
         ax_f.set_xlabel("frequency [Hz]")
         x_peak, keep = f[sel], sel
-    for rank, peak in enumerate(dominant_wavelengths(x_peak, amp[keep], n=3, min_separation=0.05)):
+    if flat:
+        ax_f.set_ylim(-0.05, 1.0)
+    peaks = [] if flat else dominant_wavelengths(x_peak, amp[keep], n=3, min_separation=0.05)
+    for rank, peak in enumerate(peaks):
         ax_f.annotate(f"{peak['wavelength_m']:.4g} {'mm' if wavelength else 'Hz'}",
                       (peak["wavelength_m"], peak["amplitude"]), textcoords="offset points",
                       xytext=(6, 2 - 11 * rank), fontsize=8, arrowprops={"arrowstyle": "-", "lw": 0.5})
