@@ -14,17 +14,18 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from drivesense.bench.linear_axis import identification_table, session_truth
+from drivesense.bench.linear_axis import identification_table, score_process, session_truth
 from drivesense.cli import app
 from drivesense.errors import ConfigError, CoverageError, MissingChannelError
 from drivesense.estimate.model_based import ModelBased
 from drivesense.identify.linear_axis import (IdentificationWarning, constant_velocity_segments, direction_averaged,
                                              fit_cogging_table, fit_masses, fit_restoring, fit_stribeck,
                                              run_identification)
-from drivesense.io.axes_file import read_axes_file
+from drivesense.io.axes_file import read_axes_file, write_axes_file
 from drivesense.machine.linear_motor import AXES, linear_machine_model
 from drivesense.recording import Recording
 from drivesense.io import write_recording
+from drivesense.sim.machining import simulate_process
 
 FS = 250.0
 TRUE = linear_machine_model()
@@ -121,6 +122,9 @@ def test_step3_stribeck_by_trust_region_reflective():
     fast = np.array([0.05, 0.08, 0.1, 0.15, 0.2])           # all far above v_s: the hump is invisible
     with pytest.raises(CoverageError, match="do not determine"):
         fit_stribeck(fast, ax.friction_force(fast) + 0.01 * np.sin(np.arange(5)))
+    fb = fit_stribeck(fast, ax.friction_force(fast) + 0.01 * np.sin(np.arange(5)), strict=False)
+    assert fb["undetermined"] == ["F_br", "v_s"] and fb["F_br"] == fb["F_C"] and fb["v_s"] == pytest.approx(0.025)
+    assert fb["F_C"] == pytest.approx(ax.F_C, rel=1e-3) and fb["sigma"] == pytest.approx(ax.sigma, rel=1e-3)
 
 
 def test_step4_stacked_masses_solved_jointly():
@@ -201,6 +205,64 @@ def test_identification_on_simulated_air_moves_meets_the_targets(air):
     assert run_identification(air, presliding=False).model.x.x_pre == 0.0
     est = ModelBased(TRUE).fit(air)                      # the estimator's fit() is the same method
     assert est.model.x.k == pytest.approx(rep.model.x.k) and est.report is not None
+
+
+@pytest.fixture(scope="module")
+def ordinary_air():
+    """Air moves of the full-physics machine at ordinary speeds only (5-200 mm/s): no Stribeck hump in sight."""
+    from drivesense.sim.machining import simulate_air_moves
+
+    return simulate_air_moves(seed=7, speeds=(5e-3, 8e-3, 0.012, 0.03, 0.08, 0.15, 0.2))
+
+
+def test_air_moves_at_ordinary_speeds_give_a_coulomb_viscous_model(ordinary_air, tmp_path):
+    with pytest.raises(CoverageError, match=r"axis 'x': Stribeck friction: the speeds 5, 8, 12, .* do not "
+                                            r"determine F_br, v_s"):
+        run_identification(ordinary_air, strict=True)
+    with pytest.warns(IdentificationWarning) as caught:
+        rep = run_identification(ordinary_air)
+    fallback = [ax for ax in AXES if rep.model.axis(ax).undetermined]
+    assert "x" in fallback and len(caught) == len(fallback)
+    assert str(caught[0].message).startswith("axis 'x': the air moves' speeds (5 mm/s and faster) do not determine "
+                                             "the Stribeck curve's F_br and v_s; using Coulomb + viscous friction")
+    assert "--strict" in str(caught[0].message)
+    truth = session_truth(ordinary_air, TRUE)
+    table = identification_table(rep.model, truth)
+    for ax in AXES:
+        got = rep.model.axis(ax)
+        for name in ("k", "s_r", "m", "F_C", "sigma"):
+            assert table[ax][name]["rel_error"] < 0.01, (ax, name, table[ax][name])
+        if ax in fallback:
+            assert got.undetermined == ("F_br", "v_s") and got.F_br == got.F_C and got.v_s == pytest.approx(2.5e-3)
+            assert rep.steps[ax]["friction"]["undetermined"] == ["F_br", "v_s"]
+    json.dumps(rep.to_dict(), allow_nan=False)
+    held_out = simulate_process("side_-y", 2e-3, 10e-3, 0.01, 5400, seed=11)      # a cut it never saw
+    est = ModelBased(rep.model).estimate(held_out)
+    assert all(score_process(est, held_out, ax)["nrmse"] < 0.04 for ax in AXES)
+    path = write_axes_file(tmp_path / "AXES.toml", rep.model)
+    assert 'undetermined = ["F_br", "v_s"]' in path.read_text()
+    back = read_axes_file(path)
+    assert [back.axis(ax).undetermined for ax in AXES] == [rep.model.axis(ax).undetermined for ax in AXES]
+    assert back.x.F_br == rep.model.x.F_br
+    path.write_text(path.read_text().replace('undetermined = ["F_br", "v_s"]', 'undetermined = ["F_xx"]', 1))
+    with pytest.raises(ConfigError, match=r"\[x\]: linear axis parameter 'undetermined' must list parameter names"):
+        read_axes_file(path)
+
+
+def test_cli_identify_linear_falls_back_and_strict_refuses(ordinary_air, tmp_path):
+    runner = CliRunner()
+    paths = []
+    for rec in ordinary_air:
+        paths.append(tmp_path / f"{rec.name}.nc")
+        write_recording(rec, paths[-1])
+    res = runner.invoke(app, ["identify", "linear", *map(str, paths), "--out", str(tmp_path / "AXES.toml"),
+                              "--no-presliding"])
+    assert res.exit_code == 0, res.output
+    assert "warning: axis 'x': the air moves' speeds" in res.output and "* undetermined by the air moves" in res.output
+    assert read_axes_file(tmp_path / "AXES.toml").x.undetermined == ("F_br", "v_s")
+    res = runner.invoke(app, ["identify", "linear", *map(str, paths), "--out", str(tmp_path / "S.toml"), "--strict"])
+    assert res.exit_code == 2 and res.output.count("\n") == 1 and "do not determine F_br, v_s" in res.output
+    assert not (tmp_path / "S.toml").exists()
 
 
 def test_cli_identify_linear(air, tmp_path):

@@ -199,7 +199,32 @@ def _stribeck(p, v, delta):
     return np.sign(v) * (fc + (fbr - fc) * np.exp(-np.abs(v / vs) ** delta)) + sig * v
 
 
-def fit_stribeck(velocity, friction, *, delta: float = 2.0) -> dict:
+def _speed_list(speeds: np.ndarray) -> str:
+    return ", ".join(dict.fromkeys(f"{s * 1e3:.3g}" for s in speeds))
+
+
+def _coulomb_viscous(v: np.ndarray, f: np.ndarray, speeds: np.ndarray, why: str) -> dict:
+    """Step 3's fallback: ``sgn(v) F_C + sigma v`` by non-negative least squares, ``F_br = F_C``."""
+    A = np.column_stack([np.ones_like(v), np.abs(v)])
+    fa = np.sign(v) * f
+    x, _ = optimize.nnls(A, fa)
+    resid = fa - A @ x
+    s2 = float(resid @ resid) / max(v.size - 2, 1)
+    try:
+        rel = np.sqrt(np.abs(np.diag(np.linalg.inv(A.T @ A) * s2))) / np.maximum(np.abs(x), 1e-12)
+    except np.linalg.LinAlgError:
+        rel = np.full(2, np.inf)
+    if not rel[0] <= 0.5 or not (rel[1] <= 0.5 or x[1] < 1e-6):
+        raise CoverageError(f"{why}; nor do they determine Coulomb and viscous friction alone")
+    fc, sig = float(x[0]), float(x[1])
+    return {"F_C": fc, "F_br": fc, "v_s": 0.5 * float(speeds.min()), "sigma": sig,
+            "rms_n": float(np.sqrt(np.mean(resid ** 2))), "points": int(v.size),
+            "rel_std": {"F_C": float(rel[0]), "F_br": None, "v_s": None, "sigma": float(rel[1])},
+            "undetermined": ["F_br", "v_s"], "fallback": f"{why}: Coulomb + viscous friction, F_br = F_C and v_s "
+                                                          "half the slowest speed (no effect while F_br = F_C)"}
+
+
+def fit_stribeck(velocity, friction, *, delta: float = 2.0, strict: bool = True) -> dict:
     """Stribeck parameters of Eq. 4 by trust-region-reflective least squares (step 3, Eq. 6).
 
     Parameters
@@ -210,25 +235,39 @@ def fit_stribeck(velocity, friction, *, delta: float = 2.0) -> dict:
         Friction force at those velocities (Eq. 5) [N].
     delta : float
         Stribeck shape factor [-].
+    strict : bool
+        Refuse when the speeds do not determine the Stribeck curve (default).
+        False: fall back to Coulomb plus viscous friction (``sgn(v) F_C +
+        sigma v`` by non-negative least squares, ``F_br = F_C`` and ``v_s``
+        half the slowest speed, where it has no effect) and list ``F_br`` and
+        ``v_s`` as ``undetermined``.  Air moves at ordinary speeds (above a
+        few mm/s) never reach the Stribeck hump, and the machine's friction
+        there is what the fallback fits.
 
     Returns
     -------
     dict
         ``F_C``, ``F_br`` [N], ``v_s`` [m/s], ``sigma`` [N s/m], ``rms_n`` [N],
-        ``points`` and ``rel_std`` (relative standard error of each).
+        ``points`` and ``rel_std`` (relative standard error of each; None
+        where undetermined); after a fallback also ``undetermined`` (the
+        names) and ``fallback`` (why and what).
 
     Raises
     ------
     CoverageError
         Fewer than 4 distinct speeds, or a parameter the speeds do not
-        determine (relative standard error above 50 %).
+        determine (relative standard error above 50 %); not strict: fewer
+        than 2 speeds, or speeds that do not even determine ``F_C`` and ``sigma``.
     """
     v = np.asarray(velocity, float)
     f = np.asarray(friction, float)
     speeds = np.unique(np.round(np.abs(v[v != 0]), 6))
-    if speeds.size < 4:
+    if speeds.size < (4 if strict else 2):
         raise CoverageError(f"Stribeck friction: constant-velocity data at {speeds.size} distinct speed(s); "
                             "need at least 4, some below and some well above the Stribeck velocity")
+    if speeds.size < 4:
+        return _coulomb_viscous(v, f, speeds, f"Stribeck friction: {speeds.size} distinct speeds "
+                                f"({_speed_list(speeds)} mm/s) do not determine F_br, v_s")
     fa = np.sign(v) * f
     hi = np.abs(v) >= np.median(np.abs(v))
     sig0, fc0 = np.polyfit(np.abs(v[hi]), fa[hi], 1) if np.unique(np.abs(v[hi])).size > 1 else (0.0, fa.mean())
@@ -250,10 +289,13 @@ def fit_stribeck(velocity, friction, *, delta: float = 2.0) -> dict:
     out.update(rms_n=float(np.sqrt(np.mean(resid ** 2))), points=int(v.size),
                rel_std={n: float(r) for n, r in zip(names, rel)})
     bad = [n for n, r in zip(names, rel) if not r <= 0.5 and not (n == "sigma" and out[n] < 1e-6)]
+    if bad and not strict:
+        return _coulomb_viscous(v, f, speeds, f"Stribeck friction: the speeds {_speed_list(speeds)} mm/s do not "
+                                f"determine {', '.join(bad)}")
     if bad:
-        raise CoverageError(f"Stribeck friction: the speeds {', '.join(f'{s * 1e3:g}' for s in speeds)} mm/s do "
-                            f"not determine {', '.join(bad)} (relative standard error > 50 %); add constant-"
-                            "velocity moves below and around the Stribeck velocity")
+        raise CoverageError(f"Stribeck friction: the speeds {_speed_list(speeds)} mm/s do not determine "
+                            f"{', '.join(bad)} (relative standard error > 50 %); add constant-velocity moves "
+                            "below and around the Stribeck velocity")
     return out
 
 
@@ -387,7 +429,8 @@ def _speed_pairs(data: list[dict]) -> list[tuple[np.ndarray, np.ndarray, np.ndar
     return pairs
 
 
-def _identify_axis(data: list[dict], ax: str, km: float, pole_pitch: float, size: int, delta: float):
+def _identify_axis(data: list[dict], ax: str, km: float, pole_pitch: float, size: int, delta: float,
+                   strict: bool):
     pairs = _speed_pairs(data)
     if not pairs:
         raise CoverageError(f"axis '{ax}': no constant-velocity moves in both directions at the same speed; "
@@ -418,19 +461,28 @@ def _identify_axis(data: list[dict], ax: str, km: float, pole_pitch: float, size
             vm.append(float(np.mean(d["v"][sl])))
             fm.append(float(np.mean(ftil)))
     try:
-        fr = fit_stribeck(vm, fm, delta=delta)
+        fr = fit_stribeck(vm, fm, delta=delta, strict=strict)
     except CoverageError as exc:
         raise CoverageError(f"axis '{ax}': {exc}") from None
+    if fr.get("undetermined"):
+        slowest = min(abs(x) for x in vm)
+        warnings.warn(f"axis '{ax}': the air moves' speeds ({slowest * 1e3:.3g} mm/s and faster) do not determine "
+                      f"the Stribeck curve's {' and '.join(fr['undetermined'])}; using Coulomb + viscous friction "
+                      f"(F_br = F_C = {fr['F_C']:.3g} N, sigma = {fr['sigma']:.4g} N s/m, v_s = "
+                      f"{fr['v_s'] * 1e3:.3g} mm/s without effect), marked undetermined in AXES.toml. Add "
+                      f"constant-velocity moves slower than {slowest * 1e3:.3g} mm/s to identify them, or give "
+                      "--strict to refuse", IdentificationWarning, stacklevel=3)
     fr["data"] = {"velocity_m_s": vm, "force_n": fm}
     steps["friction"] = fr
-    axis = probe.with_values(F_C=fr["F_C"], F_br=fr["F_br"], v_s=fr["v_s"], sigma=fr["sigma"], delta=delta)
+    axis = probe.with_values(F_C=fr["F_C"], F_br=fr["F_br"], v_s=fr["v_s"], sigma=fr["sigma"], delta=delta,
+                             undetermined=tuple(fr.get("undetermined", ())))
     return axis, steps
 
 
 def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict | None = None,
                        pole_pitch: float = 0.023, table_size: int = 64, delta: float = 2.0,
                        min_accel: float = 0.3, min_accel_speed: float | None = None,
-                       presliding: bool = True) -> IdentificationReport:
+                       presliding: bool = True, strict: bool = False) -> IdentificationReport:
     """Identify the three axes by the four-step method, with the fit quality of every step.
 
     Parameters
@@ -459,6 +511,12 @@ def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict 
     presliding : bool
         Run step 5 (the presliding distance ``x_pre``); False leaves it 0
         (the paper's model).
+    strict : bool
+        Refuse (CoverageError) when the constant-velocity speeds do not
+        determine the Stribeck curve.  Default: fall back to Coulomb plus
+        viscous friction for that axis (see :func:`fit_stribeck`), list
+        ``F_br`` and ``v_s`` in the axis's ``undetermined`` (written to
+        AXES.toml) and warn (:class:`IdentificationWarning`).
 
     Returns
     -------
@@ -481,7 +539,7 @@ def run_identification(air_moves: Sequence[Recording], *, motor_constants: dict 
     for ax in AXES:
         t0 = time.perf_counter()
         data = _axis_data(recs, ax, kms[ax])
-        axis, st = _identify_axis(data, ax, kms[ax], pole_pitch, table_size, delta)
+        axis, st = _identify_axis(data, ax, kms[ax], pole_pitch, table_size, delta, strict)
         v_min = min_accel_speed if min_accel_speed is not None else max(3 * axis.v_s, 5e-3)
         a_list, f_list = [], []
         for d in data:

@@ -16,6 +16,7 @@
     pole_pitch = 0.023  # m
     x_pre = 1.5e-05     # m, presliding distance (optional; 0 or absent: the paper's sgn(v))
     cogging = [0.0, 2.3, ...]  # N, uniform grid over one pole pitch (periodic)
+    undetermined = ["F_br", "v_s"]  # optional: what the identification could not determine (fallback values)
 
     [y]
     ...
@@ -37,7 +38,9 @@ _COMMENTS = {"K_m": "N/A, motor constant (catalogue)", "k": "N/m, restoring cons
              "F_br": "N, breakaway friction", "v_s": "m/s, Stribeck velocity", "sigma": "N s/m, viscous friction",
              "delta": "Stribeck shape factor", "pole_pitch": "m",
              "x_pre": "m, presliding distance of the Dahl friction state (0: the paper's sgn(v))",
-             "cogging": "N, uniform grid over one pole pitch (periodic)"}
+             "cogging": "N, uniform grid over one pole pitch (periodic)",
+             "undetermined": "the air moves did not determine these: F_br = F_C, v_s without effect (Coulomb + "
+                             "viscous friction)"}
 
 
 def read_axes_file(path) -> ThreeAxisModel:
@@ -105,6 +108,11 @@ def write_axes_file(path, model: ThreeAxisModel, *, header: str | None = None) -
     for a in AXES:
         lines += ["", f"[{a}]"]
         for key, value in model.axis(a).to_dict().items():
-            text = "[" + ", ".join(repr(float(v)) for v in value) + "]" if key == "cogging" else repr(float(value))
+            if key == "cogging":
+                text = "[" + ", ".join(repr(float(v)) for v in value) + "]"
+            elif key == "undetermined":
+                text = "[" + ", ".join(f'"{v}"' for v in value) + "]"
+            else:
+                text = repr(float(value))
             lines.append(f"{key} = {text}  # {_COMMENTS[key]}")
     return write_text_file(path, "\n".join(lines) + "\n")
