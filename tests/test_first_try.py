@@ -206,3 +206,14 @@ def test_jittery_time_and_no_time_column_name_the_options_that_fix_them(tmp_path
     assert res.exit_code == 2 and "--fs HZ" in msg and "fs must be given" not in msg
     res = invoke("plot", bare, "-c", "force_x", "--out", tmp_path / "b.png", "--fs", "500")
     assert res.exit_code == 0, res.output
+
+
+# ------------------------------------------------ item 18: drivesense --version
+def test_version_prints_the_package_version():
+    from importlib.metadata import version
+
+    import drivesense
+
+    res = invoke("--version")
+    assert res.exit_code == 0 and res.output == f"drivesense {version('drivesense')}\n"
+    assert res.output == "drivesense 0.1.0\n" and drivesense.__version__ == version("drivesense")

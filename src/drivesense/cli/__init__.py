@@ -7,6 +7,8 @@ message and exit code 2 (no traceback).  Commands live in one module per group.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import typer
 
 from drivesense.cli import (archive, core, feedpower, identify_frf, identify_linear, learn, mtconnect, plot_cmd,
@@ -17,6 +19,34 @@ __all__ = ["app", "identify_app", "main"]
 # rich_markup_mode=None: help texts name units in brackets ("time [s]"), which Rich markup would swallow
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                   help="drivesense: process force from a machine tool's own drive signals.")
+
+
+def _package_version() -> str:
+    """The installed package's version (pyproject.toml), else the source tree's ``drivesense.__version__``."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("drivesense")
+    except PackageNotFoundError:
+        from drivesense import __version__
+
+        return __version__
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"drivesense {_package_version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                          help="Print the version (drivesense X.Y.Z) and exit.")] = False,
+) -> None:
+    """drivesense: process force from a machine tool's own drive signals."""
+
+
 core.register(app)
 
 identify_app = typer.Typer(no_args_is_help=True,
