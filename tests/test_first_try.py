@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from drivesense.cli import app
 from drivesense.io import read_recording
+from drivesense.recording import Recording
 
 runner = CliRunner()
 
@@ -208,12 +209,153 @@ def test_jittery_time_and_no_time_column_name_the_options_that_fix_them(tmp_path
     assert res.exit_code == 0, res.output
 
 
-# ------------------------------------------------ item 18: drivesense --version
-def test_version_prints_the_package_version():
-    from importlib.metadata import version
+# ----------------------------------------- item 7 (and 9): every command on a binary, an empty and a missing file
+#: Commands that read no input file, and why they are left out of the file checks.
+NO_INPUT_FILE = {
+    "demo": "simulates its own data",
+    "simulate": "simulates its own data",
+    "bench": "simulates its own data",
+    "axis": "writes a preset",
+    "dataset build": "simulates its own data (its --out FILE is checked below)",
+    "wear simulate": "simulates its own data",
+    "sensor simulate": "simulates its own data",
+}
+#: Each command's input files: argument lists with '{IN}' where the bad file goes (its suffix follows it);
+#: GOOD/AXIS/XML/MODEL/FILTER stand for valid files, OUT for an output path.
+INPUT_FILES = {
+    "estimate": [["{IN}.csv", "--axis", "AXIS", "--out", "OUT.csv"], ["{IN}.nc", "--axis", "AXIS", "--out", "OUT.csv"],
+                 ["GOOD.nc", "--axis", "{IN}.toml", "--out", "OUT.csv"],
+                 ["GOOD.nc", "--method", "model", "--axes", "{IN}.toml", "--out", "OUT.csv"],
+                 ["GOOD.nc", "--method", "lstm", "--model", "{IN}", "--out", "OUT.csv"],
+                 ["GOOD.nc", "--axis", "AXIS", "--idle", "{IN}.csv", "--out", "OUT.csv"]],
+    "friction": [["{IN}.csv", "--axis", "AXIS"], ["GOOD.nc", "--axis", "{IN}.toml"]],
+    "train": [["lstm", "--data", "{IN}", "--out", "OUT"], ["hybrid", "--data", "GOOD.nc", "--axes", "{IN}.toml",
+                                                          "--out", "OUT"]],
+    "plot": [["{IN}.csv", "-c", "force_x"], ["{IN}.nc", "-c", "force_x"], ["{IN}.xml", "-c", "force_x"]],
+    "identify frf": [["{IN}.csv", "--fix", "K_t=0.45,lead=0.005", "--out", "OUT.toml"],
+                     ["{IN}.nc", "--fix", "K_t=0.45,lead=0.005", "--out", "OUT.toml"]],
+    "identify linear": [["{IN}.nc", "--out", "OUT.toml"], ["{IN}.csv", "--out", "OUT.toml"]],
+    "wear calibrate": [["{IN}.csv"]],
+    "wear track": [["{IN}.csv"]],
+    "feedpower fit": [["{IN}.csv", "--model", "OUT.json"]],
+    "feedpower predict": [["{IN}.csv", "--model", "MODEL", "--out", "OUT.csv"],
+                          ["GOOD.csv", "--model", "{IN}.json", "--out", "OUT.csv"]],
+    "sensor calibrate": [["{IN}.csv", "--out", "OUT.json"], ["{IN}.nc", "--out", "OUT.json"]],
+    "sensor apply": [["{IN}.nc", "--filter", "FILTER", "--out", "OUT.nc"],
+                     ["GOOD.nc", "--filter", "{IN}.json", "--out", "OUT.nc"]],
+    "xml validate": [["{IN}.xml"]],
+    "xml export": [["{IN}.csv", "--out", "OUT.xml"], ["{IN}.nc", "--out", "OUT.xml"]],
+    "xml import": [["{IN}.xml", "--out", "OUT.nc"]],
+    "xml transform": [["{IN}.xml"], ["XML", "--xslt", "{IN}.xsl"]],
+    "archive add": [["{IN}.xml", "--archive", "OUT.sqlite"], ["{IN}.nc", "--archive", "OUT.sqlite"],
+                    ["{IN}.csv", "--archive", "OUT.sqlite"]],
+    "archive search": [["--archive", "{IN}.sqlite"]],
+    "archive show": [["abc", "--archive", "{IN}.sqlite"]],
+    "archive export": [["abc", "--out", "OUT.nc", "--archive", "{IN}.sqlite"]],
+    "archive rm": [["abc", "--archive", "{IN}.sqlite"]],
+    "mtconnect probe": [["{IN}.xml"]],
+    "mtconnect import": [["{IN}.xml", "--out", "OUT.nc"], ["{IN}.txt", "--out", "OUT.nc"],
+                         ["XML", "--devices", "{IN}.xml", "--out", "OUT.nc"]],
+}
+_BAD_FILES = {"binary": __import__("random").Random(5).randbytes(5000), "empty": b"", "missing": None}
 
-    import drivesense
 
-    res = invoke("--version")
-    assert res.exit_code == 0 and res.output == f"drivesense {version('drivesense')}\n"
-    assert res.output == "drivesense 0.1.0\n" and drivesense.__version__ == version("drivesense")
+@pytest.fixture(scope="module")
+def good_files(tmp_path_factory) -> dict:
+    import numpy as np
+
+    from drivesense.io import write_recording
+
+    d = tmp_path_factory.mktemp("good")
+    assert invoke("axis", "--out", d / "axis.toml").exit_code == 0
+    rec = Recording.from_arrays({"x_current_ref": np.sin(np.arange(64.0)), "force_x": np.ones(64)}, fs=1000.0)
+    write_recording(rec, d / "good.nc")
+    write_recording(rec, d / "good.csv")
+    write_recording(rec, d / "good.xml")
+    data = Path(__file__).parent / "data"
+    assert invoke("feedpower", "fit", data / "feed_power_table3.csv", "--model", d / "model.json").exit_code == 0
+    assert invoke("sensor", "simulate", "--out-dir", d / "s", "--levels", "1.3").exit_code == 0
+    assert invoke("sensor", "calibrate", d / "s" / "shaker_1.3g.nc", "--out", d / "filter.json").exit_code == 0
+    return {"GOOD.nc": d / "good.nc", "GOOD.csv": d / "good.csv", "AXIS": d / "axis.toml", "XML": d / "good.xml",
+            "MODEL": d / "model.json", "FILTER": d / "filter.json"}
+
+
+def test_every_command_is_checked_or_listed_as_reading_no_file():
+    assert set(INPUT_FILES) | set(NO_INPUT_FILE) == set(_commands())
+    assert not set(INPUT_FILES) & set(NO_INPUT_FILE)
+
+
+@pytest.mark.parametrize("kind", list(_BAD_FILES))
+@pytest.mark.parametrize("command, template", [(c, t) for c, ts in INPUT_FILES.items() for t in ts],
+                         ids=lambda v: v if isinstance(v, str) else "-".join(a for a in v if "{IN}" in a))
+def test_bad_input_file_gives_one_line_and_exit_2(command, template, kind, good_files, tmp_path):
+    args = []
+    for a in template:
+        if "{IN}" in a:
+            path = tmp_path / a.replace("{IN}", f"bad_{kind}")
+            if _BAD_FILES[kind] is not None:
+                path.write_bytes(_BAD_FILES[kind])
+            a = path
+        elif a in good_files:
+            a = good_files[a]
+        elif a.startswith("OUT"):
+            a = tmp_path / a.replace("OUT", "out")
+        args.append(a)
+    res = invoke(*command.split(), *args)
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and isinstance(res.exception, SystemExit), res.output
+    assert "error:" in res.output, res.output
+    if kind == "binary" and any(str(a).endswith(".csv") and "{IN}" in str(a) for a in template):
+        assert "not a text CSV file" in res.output, res.output
+
+
+def test_dataset_build_out_a_file_is_refused_in_one_line(tmp_path):
+    (tmp_path / "data").write_text("not a folder")
+    res = invoke("dataset", "build", "--out", tmp_path / "data")
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "--out" in res.output and "is a file" in res.output and len(res.output.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------------ item 12: one rule for every output option
+def _minimal_args(cmd, skip: str) -> list[str]:
+    """A placeholder for each required parameter but `skip` (the checks run before anything is read)."""
+    args = []
+    for p in cmd.params:
+        if p.required and p.name != skip:
+            args += ["placeholder"] if p.param_type_name == "argument" else [p.opts[0], "placeholder"]
+    return args
+
+
+@pytest.mark.parametrize("option", ["--out", "--json", "--plot", "--out-dir"])
+def test_output_into_a_missing_folder_is_refused_by_every_command(option, tmp_path):
+    checked = []
+    for name, cmd in _commands().items():
+        param = next((p for p in cmd.params if option in p.opts), None)
+        if param is None:
+            continue
+        missing = tmp_path / "typo" / "deeper"
+        res = invoke(*name.split(), *_minimal_args(cmd, param.name), option, missing / "result.out")
+        assert res.exit_code == 2, (name, res.output)
+        assert f"{option}: folder '{missing}' does not exist" in " ".join(res.output.split()), (name, res.output)
+        assert not (tmp_path / "typo").exists(), name
+        checked.append(name)
+    assert checked
+
+
+def test_reading_a_missing_archive_is_an_error_and_creates_nothing(tmp_path):
+    for args in (["search"], ["show", "abc"], ["rm", "abc"], ["export", "abc", "--out", tmp_path / "x.nc"]):
+        res = invoke("archive", *args, "--archive", tmp_path / "typo.sqlite")
+        assert res.exit_code == 2 and "typo.sqlite' does not exist" in " ".join(res.output.split()), res.output
+        res = invoke("archive", *args, "--archive", tmp_path / "no" / "a.sqlite")
+        assert res.exit_code == 2, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    (tmp_path / "empty.sqlite").write_bytes(b"")
+    res = invoke("archive", "search", "--archive", tmp_path / "empty.sqlite")
+    assert res.exit_code == 2 and "not a drivesense archive" in res.output
+    assert (tmp_path / "empty.sqlite").stat().st_size == 0
+
+
+def test_feedpower_fit_model_output_follows_the_same_rule(tmp_path):
+    data = Path(__file__).parent / "data" / "feed_power_table3.csv"
+    res = invoke("feedpower", "fit", data, "--model", tmp_path / "typo" / "model.json")
+    assert res.exit_code == 2 and "--model: folder" in res.output and not (tmp_path / "typo").exists()

@@ -81,6 +81,10 @@ def test_cli_plot_time_and_spectrum(feed_rec, tmp_path):
     assert res.exit_code == 0 and (tmp_path / "w.png").is_file()
     res = runner.invoke(app, ["plot", str(tmp_path / "r.nc"), "-c", "x_current", "--max-freq", "200",
                               "--out", str(tmp_path / "sub" / "f.png")])
+    assert res.exit_code == 2 and "--out: folder" in res.output and not (tmp_path / "sub").exists()   # not created
+    (tmp_path / "sub").mkdir()
+    res = runner.invoke(app, ["plot", str(tmp_path / "r.nc"), "-c", "x_current", "--max-freq", "200",
+                              "--out", str(tmp_path / "sub" / "f.png")])
     assert res.exit_code == 0 and (tmp_path / "sub" / "f.png").is_file()
 
 

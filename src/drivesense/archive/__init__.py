@@ -23,7 +23,7 @@ __all__ = ["ExperimentStore", "SearchHit", "SqliteStore", "PostgresStore", "open
            "default_archive_path", "tokenize", "parse_query"]
 
 
-def open_archive(location: str | Path | None = None, **kw: Any) -> ExperimentStore:
+def open_archive(location: str | Path | None = None, *, create: bool = True, **kw: Any) -> ExperimentStore:
     """Open (creating if needed) an archive.
 
     Parameters
@@ -31,6 +31,10 @@ def open_archive(location: str | Path | None = None, **kw: Any) -> ExperimentSto
     location : str or Path, optional
         A SQLite file path, or a PostgreSQL DSN (``postgresql://...`` or
         ``dbname=... host=...``); default :func:`default_archive_path`.
+    create : bool, optional
+        Create a missing SQLite archive (default).  False for reading: a
+        missing file or one that is no archive is an error naming the path
+        (a PostgreSQL archive's schema is created on connecting, as before).
     **kw
         Passed to the store (``timeout``, ``synchronous`` for SQLite;
         ``schema`` for PostgreSQL).
@@ -45,7 +49,7 @@ def open_archive(location: str | Path | None = None, **kw: Any) -> ExperimentSto
         from .postgres import PostgresStore
 
         return PostgresStore(str(location), **kw)
-    return SqliteStore(location, **kw)
+    return SqliteStore(location, create=create, **kw)
 
 
 def __getattr__(name: str) -> Any:

@@ -423,28 +423,40 @@ class SqliteStore(SQLArchive):
     Parameters
     ----------
     path : str or Path, optional
-        The database file (created with its folder if missing); default
-        :func:`default_archive_path`.
+        The database file (created with its folder if missing, unless
+        `create` is false); default :func:`default_archive_path`.
     timeout : float, optional
         How long a writer waits for another one [s] (default 60).
     synchronous : {"FULL", "NORMAL"}, optional
         ``FULL`` (default): every import is on disk when :meth:`add` returns;
         ``NORMAL``: faster, still never corrupt, but the last imports can be
         lost on power failure (not on a crash of the process).
+    create : bool, optional
+        Create the archive if missing (default).  False (searching, showing,
+        exporting, removing): a missing file raises FileNotFoundError and a
+        file that is no drivesense archive ConfigError; nothing is created.
     """
 
     def __init__(self, path: str | Path | None = None, *, timeout: float = 60.0,
-                 synchronous: str = "FULL") -> None:
+                 synchronous: str = "FULL", create: bool = True) -> None:
         if synchronous not in ("FULL", "NORMAL"):
             raise ConfigError(f"synchronous must be 'FULL' or 'NORMAL', got {synchronous!r}")
         self.path = Path(path).expanduser() if path is not None else default_archive_path()
         self.location = str(self.path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if not create and not self.path.is_file():
+            raise FileNotFoundError(f"archive '{self.path}' does not exist (drivesense archive add creates one)")
+        if create:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
         self._timeout = float(timeout)
         try:
             self._conn = sqlite3.connect(self.path, timeout=self._timeout, isolation_level=None,
                                          check_same_thread=False)
             self._conn.execute(f"PRAGMA busy_timeout = {int(self._timeout * 1000)}")
+            if not create and not self._conn.execute(
+                    "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'experiments'").fetchone():
+                self._conn.close()
+                raise ConfigError(f"{self.path}: not a drivesense archive (no experiments in it; "
+                                  "drivesense archive add creates one)")
             self._retry(lambda: self._conn.execute("PRAGMA journal_mode = WAL").fetchone())
             self._conn.execute(f"PRAGMA synchronous = {synchronous}")
             with self._write() as cur:

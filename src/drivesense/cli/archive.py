@@ -25,10 +25,11 @@ ArchiveOpt = Annotated[Optional[str], typer.Option(
 JsonOpt = Annotated[Optional[str], typer.Option("--json", help="Write JSON to this file ('-': print it).")]
 
 
-def _open(archive: Optional[str]):
+def _open(archive: Optional[str], *, create: bool = False):
+    """The archive of ``--archive``; only ``archive add`` creates one (reading a missing one is an error)."""
     from drivesense.archive import open_archive
 
-    return open_archive(archive)
+    return open_archive(archive, create=create)
 
 
 def _emit(json_path: Optional[str], payload) -> bool:
@@ -72,7 +73,7 @@ def add(
     """Import experiments; each import is atomic (all or nothing)."""
     read_trace = trace_reader(fs, resample, assume_si)
     rows = []
-    with _open(archive) as store:
+    with _open(archive, create=True) as store:
         for f in files:
             if not Path(f).is_file():
                 raise FileNotFoundError(2, "file not found", str(f))

@@ -16,22 +16,60 @@ from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
            "read_trace", "trace_reader", "build_estimator", "save_recording", "show_warnings", "AssumeSiOpt",
-           "FsOpt", "ResampleOpt"]
+           "FsOpt", "ResampleOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
 
 console = Console()
 err_console = Console(stderr=True)
 
 
+#: Parameter names of the commands' output options (files, or a folder the command creates) -> the option.
+#: :func:`friendly` checks each before the command runs (:func:`check_output`).
+OUTPUT_OPTIONS = {"out": "--out", "json_path": "--json", "plot": "--plot", "out_dir": "--out-dir"}
+
+
+def check_output(path, option: str) -> None:
+    """The one rule of every output option: the folder it writes into must exist; nothing is created on the way.
+
+    Raises ConfigError ``--json: folder '/x/y' does not exist`` (``-``, standard output, passes).
+    """
+    from drivesense.errors import ConfigError
+
+    if path is None or str(path) == "-":
+        return
+    parent = Path(path).parent
+    if parent.exists() and not parent.is_dir():
+        raise ConfigError(f"{option}: '{parent}' is a file, not a folder")
+    if not parent.is_dir():
+        raise ConfigError(f"{option}: folder '{parent}' does not exist")
+
+
+def check_output_folder(path: Path, option: str) -> None:
+    """An output that is a folder the command creates (or fills): it may exist, but not as a file."""
+    from drivesense.errors import ConfigError
+
+    check_output(path, option)
+    if Path(path).exists() and not Path(path).is_dir():
+        raise ConfigError(f"{option}: '{path}' is a file; give a folder (it is created if missing)")
+
+
 def friendly(fn):
-    """Turn expected errors into ``error: ...`` and exit code 2."""
+    """Turn expected errors into ``error: ...`` and exit code 2; check the output options first.
+
+    Every output option named in :data:`OUTPUT_OPTIONS` is checked with :func:`check_output` before the
+    command runs, so a typo in a folder costs nothing and creates nothing.
+    """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         from drivesense.errors import DriveSenseError
 
         try:
+            for name, option in OUTPUT_OPTIONS.items():
+                if isinstance(kwargs.get(name), (str, Path)):
+                    check_output(kwargs[name], option)
             return fn(*args, **kwargs)
-        except (DriveSenseError, FileNotFoundError, IsADirectoryError, PermissionError, KeyError) as exc:
+        except (DriveSenseError, FileNotFoundError, IsADirectoryError, NotADirectoryError, FileExistsError,
+                PermissionError, KeyError) as exc:
             msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
             err_console.print(f"[bold red]error:[/] {escape(str(msg))}", highlight=False, soft_wrap=True)
             raise typer.Exit(2) from None
@@ -65,6 +103,8 @@ def write_json(path: Optional[Path], payload: dict) -> None:
     if path is None:
         return
     from drivesense.io import write_json_file
+
+    check_output(path, "--json")
 
     console.print(f"wrote {write_json_file(path, payload)}", markup=False)
 

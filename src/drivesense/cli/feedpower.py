@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import console, friendly, key_column, write_json
+from drivesense.cli.common import check_output, console, friendly, key_column, write_json
 
 __all__ = ["register", "feedpower_app"]
 
@@ -32,6 +32,7 @@ def fit(
     """Calibrate efficiency versus slide speed from cuts with a reference force; write MODEL.json."""
     from drivesense.identify.feed_power import cross_validate, fit_feed_power, per_speed_fits, read_feed_cuts
 
+    check_output(model_path, "--model")      # an output here: the same rule as --out
     data = read_feed_cuts(cuts)
     model = fit_feed_power(data)
     model.save(model_path)

@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, err_console, friendly, progress_bar,
-                                   trace_reader, write_json)
+from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, check_output_folder, console, err_console,
+                                   friendly, progress_bar, trace_reader, write_json)
 
 __all__ = ["register"]
 
@@ -30,6 +30,8 @@ def dataset_build(
     from drivesense.errors import ConfigError
     from drivesense.learn.dataset import build_dataset, plan_runs
 
+    if out is not None:
+        check_output_folder(out, "--out")
     out = out or default_dataset_dir()
     if air_cuts < 0:
         raise ConfigError(f"'--air-cuts' must be >= 0, got {air_cuts}")

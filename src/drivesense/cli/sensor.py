@@ -134,7 +134,7 @@ def apply(
     cal = SensorCalibration.load(filter_path)
     rec = trace_reader(fs, resample, assume_si)(recording)
     result = cal.apply(rec, channel=sensor_channel)
-    save_recording(result, out, parents=True)
+    save_recording(result, out)
     acc = result["acceleration"]
     info = {"recording": str(recording), "filter": str(filter_path), "output": str(out),
             "acceleration_rms_m_s2": float(np.std(acc))}

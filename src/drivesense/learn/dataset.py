@@ -335,6 +335,8 @@ def load_folder(folder, *, val_fraction: float = 0.1, seed: int = 0,
     from drivesense.io import read_recording
 
     folder = Path(folder)
+    if folder.is_file():
+        raise InvalidSignalError(f"dataset folder '{folder}' is a file: give the folder of the traces")
     if not folder.is_dir():
         raise FileNotFoundError(f"dataset folder '{folder}' does not exist")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".nc", ".csv"))
