@@ -193,3 +193,11 @@ def model_predicts_nan_only_where_flagged(model, cuts) -> bool:
     flags = model.coverage_flags(cuts)
     force = model.predict(cuts, skip_out_of_range=True)
     return [bool(f) for f in flags] == list(np.isnan(force))
+
+
+def test_a_known_column_without_a_unit_is_refused(tmp_path):
+    """slide_speed without [unit] would be read as m/s where a user meant mm/min: refuse, naming the column."""
+    path = tmp_path / "cuts.csv"
+    path.write_text("slide_speed,total_power [W],tare_power [W],force_x [N]\n500,900,300,120\n", encoding="utf-8")
+    with pytest.raises(UnitError, match="column 'slide_speed' has no unit.*'slide_speed \\[m/s\\]'"):
+        read_feed_cuts(path)

@@ -277,7 +277,8 @@ def average_power(recording, start: float, end: float, channel: str = "spindle_p
 def read_unit_table(path, spec: dict[str, str | None]) -> tuple[dict[str, np.ndarray], dict[str, list[str]], int]:
     """Read a one-row-per-item CSV with ``name [unit]`` headers.
 
-    ``spec`` maps known column names to their quantity (None: a plain number, unit ``1``).
+    ``spec`` maps known column names to their quantity (None: a plain number, unit ``1``). A known
+    column of a physical quantity without a unit in its header is refused (never read as SI).
     Returns (SI columns, other columns as text, rows). Errors name the file, line and column.
     """
     path = Path(path)
@@ -301,6 +302,10 @@ def read_unit_table(path, spec: dict[str, str | None]) -> tuple[dict[str, np.nda
         factor = None
         if name in spec:
             quantity = spec[name] or _units.DIMENSIONLESS
+            if unit is None and quantity != _units.DIMENSIONLESS:
+                raise UnitError(f"{path.name}, line {head_no}: column {name!r} has no unit; write it in the "
+                                f"header, e.g. '{name} [{_units.si_unit(quantity)}]' (a number read in the wrong "
+                                "unit would give a silently wrong answer)")
             if unit is None:
                 unit = _units.si_unit(quantity)
             try:
