@@ -54,7 +54,7 @@ class BallScrewEstimator(ForceEstimator):
     def __init__(self, axis: BallScrewAxis, signal: SignalParams | None = None, *, axis_name: str = "x") -> None:
         self.axis = axis
         self.signal = signal or SignalParams()
-        self.axis_name = axis_name
+        self.axis_name = axis_name     # sets the channel names (kept: the stream's hot path reads them)
         self.friction = FrictionTable.zero()
         self.friction_map = None
         self._designs: dict[float, ObserverDesign] = {}
@@ -77,14 +77,25 @@ class BallScrewEstimator(ForceEstimator):
         return self._designs[fs]
 
     @property
+    def axis_name(self) -> str:
+        """Axis letter of the input and output channels."""
+        return self._axis_name
+
+    @axis_name.setter
+    def axis_name(self, name: str) -> None:
+        self._axis_name = name
+        self._channels = tuple(f"{name}_{c}" for c in INPUT_CHANNELS)
+        self._output = f"force_{name}"
+
+    @property
     def channel_names(self) -> tuple[str, ...]:
         """Input channel names for this axis (``x_current_ref``, ``x_motor_angle``, ``x_table_position``)."""
-        return tuple(f"{self.axis_name}_{c}" for c in INPUT_CHANNELS)
+        return self._channels
 
     @property
     def output_channel(self) -> str:
         """Name of the output channel (``force_x``...)."""
-        return f"force_{self.axis_name}"
+        return self._output
 
     @property
     def output_channels(self) -> tuple[str, ...]:
@@ -195,8 +206,20 @@ class BallScrewEstimator(ForceEstimator):
         arrays : mapping of str to ndarray
             The input channels (:attr:`channel_names`) [A, rad, m].
         """
-        names = self.channel_names
-        return {self.output_channel: run_kernel(state, arrays[names[0]], arrays[names[1]], arrays[names[2]])}
+        names = self._channels
+        return {self._output: run_kernel(state, arrays[names[0]], arrays[names[1]], arrays[names[2]])}
+
+    def process_arrays(self, state: KernelState, *arrays: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`process` with the current, motor-angle and table-position arrays given in that order.
+
+        Parameters
+        ----------
+        state : KernelState
+            From :meth:`new_state`.
+        *arrays : ndarray
+            Current reference [A], motor angle [rad], table position [m].
+        """
+        return {self._output: run_kernel(state, *arrays)}
 
     def describe(self) -> str:
         """Method, low-pass and compensation, for the provenance."""

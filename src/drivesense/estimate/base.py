@@ -27,6 +27,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
+from numba import njit
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
 from drivesense.recording import Recording
@@ -139,13 +140,22 @@ def check_chunk(chunk: Mapping[str, Any], channels: Sequence[str], fs: float | N
             raise InvalidSignalError(f"stream chunk channel '{c}' must be 1-D, got shape {arr.shape}")
         if n is not None and arr.size != n:
             raise InvalidSignalError(f"stream chunk channel '{c}' has {arr.size} samples, the others {n}")
-        if not np.isfinite(arr).all():
-            bad = int(np.argmin(np.isfinite(arr)))
+        bad = _first_non_finite(arr)
+        if bad >= 0:
             raise InvalidSignalError(f"stream chunk channel '{c}' holds NaN or inf (sample {bad})")
         arrays[c], n = arr, arr.size
     if missing:
         raise MissingChannelError(f"stream chunk lacks channel(s) {', '.join(repr(m) for m in missing)}")
     return arrays
+
+
+@njit(cache=True)
+def _first_non_finite(arr: np.ndarray) -> int:
+    """Index of the first NaN or inf in ``arr``, -1 if none (a compiled loop: chunks are short and many)."""
+    for i in range(arr.size):
+        if not np.isfinite(arr[i]):
+            return i
+    return -1
 
 
 def _check_rate(got: float, want: float, what: str) -> None:
@@ -261,6 +271,19 @@ class ForceEstimator(ABC):
         arrays : mapping of str to ndarray
             Every input channel [SI unit of the channel], equally long, float64, finite.
         """
+
+    def process_arrays(self, state: Any, *arrays: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`process` with the inputs given positionally in :attr:`channel_names` order (the stream's
+        fast path; a method may override it to skip building the mapping).
+
+        Parameters
+        ----------
+        state : object
+            From :meth:`new_state`.
+        *arrays : ndarray
+            One array per input channel, equally long, float64, finite, SI.
+        """
+        return self.process(state, dict(zip(self.channel_names, arrays)))
 
     # ------------------------------------------------------------ shared parts
     def describe(self) -> str:
@@ -382,8 +405,8 @@ class ForceStream:
         dict of str to ndarray
             Forces [N].
         """
-        out = self.estimator.process(self.state, dict(zip(self.estimator.channel_names, arrays)))
-        self.samples_seen += len(arrays[0]) if arrays else 0
+        out = self.estimator.process_arrays(self.state, *arrays)
+        self.samples_seen += len(arrays[0])
         return out
 
     def push(self, chunk: Recording | Mapping[str, Any], *, fs: float | None = None):
