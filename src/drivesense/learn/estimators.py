@@ -130,8 +130,11 @@ class LSTM(ForceEstimator):
         recording : Recording
             The trace.
         """
-        recording.require(*INPUT_CHANNELS)
-        return resample_to(recording, self._require().config.fs)
+        fs = self._require().config.fs
+        if abs(recording.fs - fs) < 1e-9 * fs:
+            return recording
+        recording.require(*INPUT_CHANNELS)      # before resampling a trace that could not be estimated
+        return resample_to(recording, fs)
 
     def new_state(self, fs: float) -> dict:
         """Hidden and cell states of the three networks (and presliding states), fresh.
