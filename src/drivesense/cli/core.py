@@ -173,6 +173,7 @@ def estimate(
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
+    from drivesense.estimate.design import lowpass_sos
     from drivesense.io import write_csv
 
     read_trace = trace_reader(fs, resample, assume_si)
@@ -216,7 +217,6 @@ def estimate(
                  "force_n": {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
                              "std": float(f.std())}})
     if est.output_channel in rec.channels:
-        from drivesense.estimate.design import lowpass_sos
         from drivesense.score import score_estimate
 
         window = (rec.t0 + est.settle_time(rec.fs), rec.t0 + rec.duration)
@@ -224,7 +224,6 @@ def estimate(
                            sos=lowpass_sos(signal, rec.fs))
         info["score_vs_reference"] = s.to_dict()
     if plot:
-        from drivesense.estimate.design import lowpass_sos
         from drivesense.plot import plot_estimates, save_figure
         from drivesense.plot.estimates import cut_zoom_window
 

@@ -15,7 +15,7 @@ into per-channel FIR taps plus one IIR cascade that
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -209,17 +209,21 @@ class BallScrewEstimator(ForceEstimator):
         names = self._channels
         return {self._output: run_kernel(state, arrays[names[0]], arrays[names[1]], arrays[names[2]])}
 
-    def process_arrays(self, state: KernelState, *arrays: np.ndarray) -> dict[str, np.ndarray]:
-        """:meth:`process` with the current, motor-angle and table-position arrays given in that order.
+    def fast_path(self, state: KernelState) -> Callable[..., dict[str, np.ndarray]]:
+        """``step(current_ref [A], motor_angle [rad], table_position [m]) -> {force_ax: F [N]}`` on ``state``:
+        the compiled kernel called directly.
 
         Parameters
         ----------
         state : KernelState
-            From :meth:`new_state`.
-        *arrays : ndarray
-            Current reference [A], motor angle [rad], table position [m].
+            From :meth:`new_state`; carried by the function.
         """
-        return {self._output: run_kernel(state, *arrays)}
+        name = self._output
+
+        def step(current_ref: np.ndarray, motor_angle: np.ndarray, table_position: np.ndarray) -> dict:
+            return {name: run_kernel(state, current_ref, motor_angle, table_position)}
+
+        return step
 
     def describe(self) -> str:
         """Method, low-pass and compensation, for the provenance."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 from numba import njit
@@ -272,18 +272,19 @@ class ForceEstimator(ABC):
             Every input channel [SI unit of the channel], equally long, float64, finite.
         """
 
-    def process_arrays(self, state: Any, *arrays: np.ndarray) -> dict[str, np.ndarray]:
-        """:meth:`process` with the inputs given positionally in :attr:`channel_names` order (the stream's
-        fast path; a method may override it to skip building the mapping).
+    def fast_path(self, state: Any) -> Callable[..., dict[str, np.ndarray]]:
+        """A function ``step(*arrays) -> {channel: forces}`` that runs :meth:`process` on ``state`` with the
+        inputs given positionally in :attr:`channel_names` order: the stream's unchecked fast path.
+
+        A method may return a leaner function (the ball-screw methods call their kernel directly).
 
         Parameters
         ----------
         state : object
-            From :meth:`new_state`.
-        *arrays : ndarray
-            One array per input channel, equally long, float64, finite, SI.
+            From :meth:`new_state`; carried by the function.
         """
-        return self.process(state, dict(zip(self.channel_names, arrays)))
+        names = self.channel_names
+        return lambda *arrays: self.process(state, dict(zip(names, arrays)))
 
     # ------------------------------------------------------------ shared parts
     def describe(self) -> str:
@@ -379,6 +380,7 @@ class ForceStream:
         self.estimator = estimator
         self.fs = check_fs(fs)
         self.state = estimator.new_state(self.fs)
+        self._step = estimator.fast_path(self.state)
         self.latency_s = estimator.latency_s(self.fs) + float(delay_s)
         self.samples_seen = 0
 
@@ -405,7 +407,7 @@ class ForceStream:
         dict of str to ndarray
             Forces [N].
         """
-        out = self.estimator.process_arrays(self.state, *arrays)
+        out = self._step(*arrays)
         self.samples_seen += len(arrays[0])
         return out
 
