@@ -149,7 +149,7 @@ def ripple_params(ripples: Sequence[Ripple]) -> RippleParams:
                         np.array([r.phase for r in ripples], dtype=np.float64))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ripple_sum(r: RippleParams, x: float, base: float = 0.0) -> float:
     """Sum of ripple components at coordinate ``x``.
 
@@ -205,7 +205,7 @@ def ripple_values(ripples: Sequence[Ripple] | RippleParams, x) -> np.ndarray:
     return _ripple_array(r, np.ascontiguousarray(xa.ravel())).reshape(xa.shape)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def coulomb_level(p: LuGreParams, x: float, load: float) -> float:
     """Local Coulomb level with drift, ripple and load, clamped at zero.
 
@@ -238,7 +238,7 @@ def _coulomb_array(p: LuGreParams, x: np.ndarray, load: np.ndarray) -> np.ndarra
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lugre_step(p: LuGreParams, z: float, v: float, F_c: float, dt: float):
     """Advance the bristle state over ``dt`` at constant velocity ``v``.
 
