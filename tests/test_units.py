@@ -86,3 +86,14 @@ def test_si_unit_of_every_quantity_is_in_table():
     for q in units.QUANTITIES:
         assert units.quantity_of_unit(units.si_unit(q)) == q
         assert units.known_units(q)[0] == units.si_unit(q)
+
+
+def test_controller_spindle_units_deg_per_s_and_rev_per_min():
+    """Edge recorders log the spindle in deg/s or rev/min; both convert to rad/s."""
+    import math
+
+    from drivesense.units import to_si
+
+    assert to_si([360.0], "deg/s", quantity="angular_speed")[0] == pytest.approx(2 * math.pi)
+    assert to_si([60.0], "rev/min", quantity="angular_speed")[0] == pytest.approx(2 * math.pi)
+    assert to_si([1.0], "rev/s", quantity="angular_speed")[0] == pytest.approx(2 * math.pi)
