@@ -248,11 +248,31 @@ class LearnedModel:
             Model part of each force channel [N].
         """
         recording.require(*INPUT_CHANNELS)
-        arrays = {c: recording[c] for c in recording.channels}
-        x = self.scaled_inputs(arrays)
+        return self.features({c: recording[c] for c in recording.channels}, {}, {})
+
+    def features(self, arrays, input_state: dict, model_state: dict) -> tuple[np.ndarray, dict]:
+        """Scaled inputs and the model part of each output [N] for the next samples, carrying both states.
+
+        Parameters
+        ----------
+        arrays : mapping of str to array_like
+            ``{channel: samples}`` [SI unit of each channel].
+        input_state : dict
+            Presliding states of the inputs (:meth:`scaled_inputs`), updated in place.
+        model_state : dict
+            The hybrid's model state (:meth:`ModelBased.process`), updated in place.
+
+        Returns
+        -------
+        x : ndarray
+            Scaled inputs [-].
+        base : dict of str to ndarray
+            Model part of each force channel [N] (zeros for a plain LSTM).
+        """
+        x = self.scaled_inputs(arrays, input_state)
         if self.kind == "hybrid":
-            return x, ModelBased(self.model_based).process({}, arrays)
-        return x, {ch: np.zeros(recording.n_samples) for ch in TARGET_CHANNELS}
+            return x, ModelBased(self.model_based).process(model_state, arrays)
+        return x, {ch: np.zeros(len(x)) for ch in TARGET_CHANNELS}
 
     def network_input(self, x: np.ndarray, base: np.ndarray, channel: str) -> np.ndarray:
         """Inputs of ``channel``'s network: the NC inputs, plus the scaled model estimate for a hybrid.
@@ -300,12 +320,8 @@ class LearnedModel:
         dict of str to ndarray
             Force per channel [N].
         """
-        n = len(arrays[INPUT_CHANNELS[0]])
-        x_all = self.scaled_inputs(arrays, state["inputs"])
-        if self.kind == "hybrid":
-            bases = ModelBased(self.model_based).process(state["model"], arrays)
-        else:
-            bases = {ch: np.zeros(n) for ch in TARGET_CHANNELS}
+        x_all, bases = self.features(arrays, state["inputs"], state["model"])
+        n = len(x_all)
         inputs = {ch: self.network_input(x_all, bases[ch], ch) for ch in TARGET_CHANNELS}
         if network_inputs is not None:
             network_inputs.update(inputs)
