@@ -187,10 +187,11 @@ def wrap_forces(estimator: "ForceEstimator", source: Recording, forces: Mapping[
         ``meta``: ``name``, ``method``, ``latency_s``, ``source``, ``sign`` and
         ``provenance`` (the source's plus this step).
     """
-    name = source.meta.get("name", "trace")
+    source_meta = source.meta          # parsed from JSON on each access: read once
+    name = source_meta.get("name", "trace")
     meta = {"name": f"{name}:{estimator.name}", "method": estimator.name, "latency_s": float(latency_s),
             "source": name, "sign": "force on the workpiece (table) along +axis",
-            "provenance": list(source.meta.get("provenance", []))
+            "provenance": list(source_meta.get("provenance", []))
             + [f"estimate {estimator.name}: {estimator.describe()}; latency {latency_s * 1e3:.3f} ms"]}
     # outputs of validated (finite) inputs: no copy, no re-validation on this hot path
     return Recording.from_computed(dict(forces), {k: "N" for k in forces},
