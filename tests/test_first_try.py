@@ -146,7 +146,7 @@ def test_version_prints_the_package_version():
 
 
 # ------------------------------------------- items 2 and 10: --assume-si, --fs and --resample where traces are read
-TRACE_READERS = ("estimate", "friction", "train", "plot", "identify frf", "identify linear", "sensor calibrate",
+TRACE_READERS = ("estimate", "friction", "train", "plot", "identify frf", "identify linear", "identify nc", "sensor calibrate",
                  "sensor apply", "xml export", "archive add")
 
 
@@ -235,6 +235,7 @@ INPUT_FILES = {
     "identify frf": [["{IN}.csv", "--fix", "K_t=0.45,lead=0.005", "--out", "OUT.toml"],
                      ["{IN}.nc", "--fix", "K_t=0.45,lead=0.005", "--out", "OUT.toml"]],
     "identify linear": [["{IN}.nc", "--out", "OUT.toml"], ["{IN}.csv", "--out", "OUT.toml"]],
+    "identify nc": [["{IN}.nc", "--out", "OUT.toml"], ["{IN}.csv", "--out", "OUT.toml"]],
     "wear calibrate": [["{IN}.csv"]],
     "wear track": [["{IN}.csv"]],
     "feedpower fit": [["{IN}.csv", "--model", "OUT.json"]],

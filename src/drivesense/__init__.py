@@ -32,6 +32,8 @@ from drivesense.sim.tool_life import WearExperiment, simulate_tool_life, table1_
 from drivesense.sim.electret import ElectretSensor, simulate_shaker_pair
 from drivesense.estimate.model_based import ModelBased
 from drivesense.identify.linear_axis import IdentificationReport, identify_axes, run_identification
+from drivesense.identify.controller import ControllerIdentification, identify_controller
+from drivesense.machine.controller_model import ControllerAxis, ControllerModel
 from drivesense.io.axes_file import read_axes_file, write_axes_file
 from drivesense.machine.linear_motor import LinearMotorAxis, ThreeAxisModel, linear_machine_model
 from drivesense.sim.machining import process_names, simulate_air_moves, simulate_process
@@ -57,7 +59,8 @@ __all__ += [
 ]
 __all__ += ["ModelBased", "LinearMotorAxis", "ThreeAxisModel", "linear_machine_model", "identify_axes",
             "run_identification", "IdentificationReport", "read_axes_file", "write_axes_file",
-            "simulate_process", "simulate_air_moves", "process_names"]
+            "simulate_process", "simulate_air_moves", "process_names",
+            "identify_controller", "ControllerIdentification", "ControllerModel", "ControllerAxis"]
 
 # experiment data: the XML format, the archive, MTConnect ingest
 from drivesense import archive  # noqa: E402

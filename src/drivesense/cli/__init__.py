@@ -11,8 +11,8 @@ from typing import Annotated
 
 import typer
 
-from drivesense.cli import (archive, core, feedpower, identify_frf, identify_linear, learn, mtconnect, plot_cmd,
-                            sensor, wear, xml_cmd)
+from drivesense.cli import (archive, core, feedpower, identify_frf, identify_linear, identify_nc, learn, mtconnect,
+                            plot_cmd, sensor, wear, xml_cmd)
 
 __all__ = ["app", "identify_app", "main"]
 
@@ -53,6 +53,7 @@ identify_app = typer.Typer(no_args_is_help=True,
                            help="Identify axis parameters from measurements and write the parameter file.")
 identify_frf.register(identify_app)
 identify_linear.register(identify_app)
+identify_nc.register(identify_app)
 app.add_typer(identify_app, name="identify")
 for module in (learn, wear, feedpower, sensor, xml_cmd, archive, mtconnect, plot_cmd):
     module.register(app)

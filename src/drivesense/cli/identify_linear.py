@@ -119,9 +119,9 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
                   "force_n": {}, "score_vs_reference": {}, "warnings": []}
     table = Table(title=escape(f"{est.name} estimate of {trace.name}"), show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
-    table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the trace's declared delay)")
+    table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the method's and the trace's declared delay)")
     window = tuple(rec.meta.get("score_window", (rec.t0, rec.t0 + rec.duration)))
-    for ch in ("force_x", "force_y", "force_z"):
+    for ch in force.channels:
         f = force[ch]
         info["force_n"][ch] = {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),
                                "std": float(f.std())}

@@ -25,6 +25,7 @@ from drivesense.estimate.vibration import VibrationMode
 from drivesense.io.axes_file import read_axes_file
 from drivesense.io.axis_file import read_axis_file
 from drivesense.machine.ballscrew import BallScrewAxis
+from drivesense.machine.controller_model import ControllerModel
 from drivesense.machine.linear_motor import ThreeAxisModel
 from drivesense.machine.signal_chain import SignalParams
 
@@ -50,7 +51,7 @@ def _ballscrew_factory(cls: type[BallScrewEstimator]):
 def _model_factory(*, axes, presliding: bool = True, v_eps: float = 2.0e-4) -> ModelBased:
     if is_path(axes):
         axes = read_axes_file(axes)
-    if not isinstance(axes, ThreeAxisModel):
+    if not isinstance(axes, (ThreeAxisModel, ControllerModel)):
         raise ConfigError(f"method 'model' needs identified axes (--axes AXES.toml), got {type(axes).__name__}")
     return ModelBased(axes, presliding=presliding, v_eps=v_eps)
 
@@ -64,5 +65,6 @@ _SUMMARIES = {
 for _cls, _summary in _SUMMARIES.items():
     register(_cls.name, _ballscrew_factory(_cls), drive="ballscrew", summary=_summary, needs="--axis AXIS.toml (the ball-screw axis file: drivesense axis or identify frf)")
 register(ModelBased.name, _model_factory, drive="linear",
-         needs="--axes AXES.toml (write one with 'drivesense identify linear')",
-         summary="linear-motor axis model, Eq. 2 of the third paper, with presliding friction")
+         needs="--axes AXES.toml (write one with 'drivesense identify linear' or 'drivesense identify nc')",
+         summary="linear-motor axis model (Eq. 2 of the third paper, presliding friction) or the controller-rate "
+                 "model of any machine")

@@ -1,4 +1,4 @@
-"""Model-based reconstruction of the process force on a linear-motor machine (third paper, Eq. 2).
+"""Model-based reconstruction of the process force (third paper, Eq. 2, and the controller-rate model).
 
 ::
 
@@ -31,6 +31,13 @@ friction by twice the breakaway force from sample to sample.
   as a linear ramp over ``|v| < v_eps`` (default 0.2 mm/s).  A standing axis
   is then credited with no friction at all and the ramp acts as a huge
   damper on its micro-motion: the paper's errors on the standing axis.
+
+With a :class:`~drivesense.machine.controller_model.ControllerModel` (any
+drive type, from ``identify nc``: :func:`drivesense.identify.controller.identify_controller`)
+the force of each axis is ``K_m I - sum_j p_j phi_j`` with the terms the
+identification kept; the method is stateless and its latency is the model's
+``delay_s`` (the drive channels' logging delay behind the process force).
+``fit(traces)`` then identifies that model from air and calibration cuts.
 """
 
 from __future__ import annotations
@@ -41,7 +48,9 @@ import numpy as np
 
 from drivesense.errors import ConfigError, NotFittedError
 from drivesense.estimate.base import ForceEstimator
+from drivesense.identify.controller import identify_controller
 from drivesense.identify.linear_axis import run_identification
+from drivesense.machine.controller_model import ControllerModel
 from drivesense.machine.linear_motor import AXES, ThreeAxisModel
 from drivesense.machine.presliding import carried_presliding_direction
 from drivesense.recording import Recording
@@ -57,11 +66,15 @@ class ModelBased(ForceEstimator):
 
     Parameters
     ----------
-    model : ThreeAxisModel, optional
+    model : ThreeAxisModel or ControllerModel, optional
         Identified axes (e.g. :func:`drivesense.io.axes_file.read_axes_file`);
         None until :meth:`fit`.
-    axes : sequence of str
-        Axes to estimate (default x, y, z); each needs its four input channels.
+    axes : sequence of str, optional
+        Axes to estimate (default: x, y, z, or every axis of a ControllerModel).
+    kind : {"linear", "controller"}, optional
+        Which model :meth:`fit` identifies: the four-step linear-motor model
+        from dedicated air moves, or the controller-rate model from ordinary
+        air cuts and calibration cuts (default: the kind of ``model``, else "linear").
     v_eps : float
         Half-width of the ramp replacing ``sgn(v)`` in the friction [m/s]
         (axes without presliding).
@@ -73,14 +86,21 @@ class ModelBased(ForceEstimator):
     name = "model"
     drive = "linear"
 
-    def __init__(self, model: ThreeAxisModel | None = None, *, axes: Sequence[str] = AXES,
-                 v_eps: float = 2.0e-4, presliding: bool = True) -> None:
-        if model is not None and not isinstance(model, ThreeAxisModel):
-            raise ConfigError(f"ModelBased needs a ThreeAxisModel, got {type(model).__name__}")
-        axes = tuple(axes)
-        bad = [a for a in axes if a not in AXES]
+    def __init__(self, model: ThreeAxisModel | ControllerModel | None = None, *, axes: Sequence[str] | None = None,
+                 v_eps: float = 2.0e-4, presliding: bool = True, kind: str | None = None) -> None:
+        if model is not None and not isinstance(model, (ThreeAxisModel, ControllerModel)):
+            raise ConfigError(f"ModelBased needs a ThreeAxisModel or ControllerModel, got {type(model).__name__}")
+        if kind is None:
+            kind = "controller" if isinstance(model, ControllerModel) else "linear"
+        if kind not in ("linear", "controller") or (model is not None and
+                                                    isinstance(model, ControllerModel) != (kind == "controller")):
+            raise ConfigError(f"ModelBased kind must be 'linear' or 'controller' and match the model, got {kind!r}")
+        self.kind = kind
+        known = tuple(model.axes) if isinstance(model, ControllerModel) else AXES
+        axes = tuple(axes) if axes is not None else (known if kind == "controller" or model is not None else AXES)
+        bad = [a for a in axes if a not in known]
         if bad or not axes:
-            raise ConfigError(f"ModelBased axes must be some of x, y, z, got {list(axes)!r}")
+            raise ConfigError(f"ModelBased axes must be some of {', '.join(known)}, got {list(axes)!r}")
         if not (isinstance(v_eps, (int, float)) and v_eps >= 0):
             raise ConfigError(f"ModelBased 'v_eps' must be a speed >= 0 [m/s], got {v_eps!r}")
         self.model = model
@@ -91,7 +111,12 @@ class ModelBased(ForceEstimator):
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        """Input channels, ``{ax}_current, {ax}_position, {ax}_velocity, {ax}_acceleration`` per axis."""
+        """Input channels, ``{ax}_current, {ax}_position, {ax}_velocity, {ax}_acceleration`` per axis.
+
+        A controller model reads only what its kept terms need.
+        """
+        if isinstance(self.model, ControllerModel):
+            return self.model.input_channels(self.axes)
         return tuple(f"{a}_{c}" for a in self.axes for c in MODEL_INPUTS)
 
     @property
@@ -100,27 +125,34 @@ class ModelBased(ForceEstimator):
         return tuple(f"force_{a}" for a in self.axes)
 
     def fit(self, runs: Sequence[Recording], **kwargs) -> "ModelBased":
-        """Identify the model from air moves by the four-step method.
+        """Identify the model: four-step from air moves, or the controller-rate model.
 
         Parameters
         ----------
         runs : sequence of Recording
-            Air moves (no cutting) of all three axes.
+            ``kind="linear"``: air moves (no cutting) of all three axes;
+            ``kind="controller"``: ordinary air cuts and calibration cuts
+            (with ``force_*`` channels) of one trace rate.
         **kwargs
-            Passed to :func:`drivesense.identify.linear_axis.run_identification`;
-            the motor constants default to the current model's, if any.
+            Passed to :func:`drivesense.identify.linear_axis.run_identification`
+            (the motor constants default to the current model's, if any) or
+            :func:`drivesense.identify.controller.identify_controller`.
 
         Returns
         -------
         self
         """
+        if self.kind == "controller":
+            self.report = identify_controller(runs, **kwargs)
+            self.model = self.report.model
+            return self
         if self.model is not None and "motor_constants" not in kwargs:
             kwargs["motor_constants"] = {a: self.model.axis(a).K_m for a in AXES}
         self.report = run_identification(runs, **kwargs)
         self.model = self.report.model
         return self
 
-    def _require_model(self) -> ThreeAxisModel:
+    def _require_model(self) -> ThreeAxisModel | ControllerModel:
         if self.model is None:
             raise NotFittedError("ModelBased has no model: give a ThreeAxisModel (AXES.toml) or call fit(air_moves)")
         return self.model
@@ -133,7 +165,8 @@ class ModelBased(ForceEstimator):
         axis : {"x", "y", "z"}
             Axis letter.
         """
-        return self.presliding and self._require_model().axis(axis).x_pre > 0
+        model = self._require_model()
+        return self.presliding and isinstance(model, ThreeAxisModel) and model.axis(axis).x_pre > 0
 
     def forces(self, arrays: Mapping[str, np.ndarray], state: dict | None = None) -> dict[str, np.ndarray]:
         """Eq. 2 on arrays: ``{force_ax: F}`` [N] from ``{ax}_current`` [A], ``_position`` [m], ... (SI).
@@ -148,6 +181,8 @@ class ModelBased(ForceEstimator):
             fresh start.
         """
         model = self._require_model()
+        if isinstance(model, ControllerModel):
+            return {f"force_{a}": model.process_force(a, arrays) for a in self.axes}
         out = {}
         for a in self.axes:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)
@@ -158,14 +193,14 @@ class ModelBased(ForceEstimator):
         return out
 
     def latency_s(self, fs: float) -> float:
-        """None of its own: 0 s at any ``fs`` [Hz] (a trace's declared ``nc_delay_s`` adds to it).
+        """A controller model's ``delay_s``; else none: 0 s at any ``fs`` [Hz] (a trace's ``nc_delay_s`` adds to it).
 
         Parameters
         ----------
         fs : float
             Sample rate [Hz].
         """
-        return 0.0
+        return self.model.delay_s if isinstance(self.model, ControllerModel) else 0.0
 
     def new_state(self, fs: float) -> dict:
         """The presliding state per axis, ``{ax: (last position [m], direction [-])}``, empty at the start.
@@ -191,7 +226,11 @@ class ModelBased(ForceEstimator):
         return self.forces(arrays, state)
 
     def describe(self) -> str:
-        """Eq. 2 and the friction direction used, for the provenance."""
+        """Eq. 2 and the friction direction used (or the controller model's terms), for the provenance."""
+        if isinstance(self.model, ControllerModel):
+            kept = {a: len(self.model.axis(a).terms) for a in self.axes}
+            return (f"controller-rate model K_m I - sum p phi identified at {self.model.rate_hz:g} Hz "
+                    f"({', '.join(f'{a}: {n} terms' for a, n in kept.items())})")
         pre = [a for a in self.axes if self.uses_presliding(a)]
         label = f"presliding (Dahl) on {''.join(pre)}" if pre else f"sgn(v) ramped over {self.v_eps * 1e3:g} mm/s"
         return f"Eq. 2 with stacked masses, friction direction {label}"

@@ -1,4 +1,32 @@
-"""AXES.toml: the three linear-motor axes of Eq. 2, in SI, cogging table included.
+"""AXES.toml: the machine model of ``estimate --method model``, in SI.
+
+Two kinds.  The three linear-motor axes of Eq. 2 (``identify linear``),
+cogging table included; or, with a top-level ``model = "controller"``, the
+controller-rate model of any machine (``identify nc``, see
+:mod:`drivesense.machine.controller_model`)::
+
+    # drivesense controller-rate machine model (SI units)
+    model = "controller"
+    rate_hz = 50.0        # Hz, trace rate it was identified at
+    window_s = 0.02       # s, logging window of the drive channels
+    delay_s = 0.01        # s, delay of the drive channels behind the process force
+
+    [x]
+    K_m = -520.0          # N/A, force constant as logged (sign included)
+    K_m_ci95 = 4.1        # N/A, 95 % half-width
+    v_eps = 2e-05         # m/s, standstill noise of the logged velocity
+    v_s = 0.005           # m/s, Stribeck velocity (0: none)
+    period = 0.01         # m, period of the ripple terms (0: none)
+
+    [x.terms]             # F = K_m I - sum(value * feature); name = [value, 95 % half-width]
+    offset = [12.0, 3.0]  # N
+    inertia_x = [610.0, 20.0]  # kg
+    ...
+
+    [x.dropped]           # terms the data did not determine, and why
+    position = "not determined: ..."
+
+The linear-motor kind::
 
 ::
 
@@ -28,7 +56,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import json
+
 from drivesense.errors import ConfigError
+from drivesense.machine.controller_model import ControllerAxis, ControllerModel, term_unit
 from drivesense.machine.linear_motor import AXES, LinearMotorAxis, ThreeAxisModel
 
 __all__ = ["read_axes_file", "write_axes_file"]
@@ -43,8 +74,8 @@ _COMMENTS = {"K_m": "N/A, motor constant (catalogue)", "k": "N/m, restoring cons
                              "viscous friction)"}
 
 
-def read_axes_file(path) -> ThreeAxisModel:
-    """Read an AXES.toml.
+def read_axes_file(path) -> ThreeAxisModel | ControllerModel:
+    """Read an AXES.toml (either kind).
 
     Parameters
     ----------
@@ -53,7 +84,8 @@ def read_axes_file(path) -> ThreeAxisModel:
 
     Returns
     -------
-    ThreeAxisModel
+    ThreeAxisModel or ControllerModel
+        The latter for a file with ``model = "controller"``.
 
     Raises
     ------
@@ -67,6 +99,8 @@ def read_axes_file(path) -> ThreeAxisModel:
 
     path = Path(path)
     data = read_toml(path, "axes file")
+    if "model" in data:
+        return _read_controller(path, data)
     unknown = [k for k in data if k not in AXES]
     if unknown:
         raise ConfigError(f"axes file '{path}': unknown table(s) or key(s) {', '.join(unknown)} "
@@ -82,14 +116,56 @@ def read_axes_file(path) -> ThreeAxisModel:
     return ThreeAxisModel(**axes)
 
 
-def write_axes_file(path, model: ThreeAxisModel, *, header: str | None = None) -> Path:
+def _read_controller(path: Path, data: dict) -> ControllerModel:
+    if data["model"] != "controller":
+        raise ConfigError(f"axes file '{path}': model = {data['model']!r} is unknown (expected \"controller\", "
+                          "or no 'model' key for the linear-motor axes)")
+    scalars = ("rate_hz", "window_s", "delay_s")
+    missing = [k for k in scalars if k not in data]
+    if missing:
+        raise ConfigError(f"axes file '{path}': missing key(s) {', '.join(missing)}")
+    for k in scalars:
+        if isinstance(data[k], bool) or not isinstance(data[k], (int, float)):
+            raise ConfigError(f"axes file '{path}': {k} must be a number, got {data[k]!r}")
+    tables = {k: v for k, v in data.items() if k not in (*scalars, "model")}
+    if not tables:
+        raise ConfigError(f"axes file '{path}': no axis table (e.g. [x])")
+    axes = {}
+    for name, table in tables.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"axes file '{path}': unknown key {name!r} (axes are tables, e.g. [x])")
+        axes[name] = ControllerAxis.from_dict(table, source=f"axes file '{path}' [{name}]")
+    return ControllerModel(axes=axes, window_s=float(data["window_s"]), delay_s=float(data["delay_s"]),
+                           rate_hz=float(data["rate_hz"]))
+
+
+def _controller_lines(model: ControllerModel) -> list[str]:
+    lines = ["# drivesense controller-rate machine model (SI units)", 'model = "controller"',
+             f"rate_hz = {model.rate_hz!r}  # Hz, trace rate it was identified at",
+             f"window_s = {model.window_s!r}  # s, logging window of the drive channels (0: point samples)",
+             f"delay_s = {model.delay_s!r}  # s, delay of the drive channels behind the process force (latency)"]
+    notes = {"K_m": "N/A, force constant as logged (sign included)", "K_m_ci95": "N/A, 95 % half-width",
+             "v_eps": "m/s, standstill noise of the logged velocity", "v_s": "m/s, Stribeck velocity (0: none)",
+             "period": "m, period of the ripple terms (0: none)"}
+    for name, ax in model.axes.items():
+        d = ax.to_dict()
+        lines += ["", f"[{name}]"] + [f"{k} = {float(d[k])!r}  # {note}" for k, note in notes.items()]
+        lines += ["", f"[{name}.terms]  # F = K_m I - sum(value * feature); name = [value, 95 % half-width]"]
+        lines += [f"{t.name} = [{t.value!r}, {t.ci95!r}]  # {term_unit(t.name)}" for t in ax.terms]
+        if ax.dropped:
+            lines += ["", f"[{name}.dropped]  # terms the data did not determine, and why"]
+            lines += [f"{k} = {json.dumps(str(v), ensure_ascii=False)}" for k, v in ax.dropped.items()]
+    return lines
+
+
+def write_axes_file(path, model: ThreeAxisModel | ControllerModel, *, header: str | None = None) -> Path:
     """Write an AXES.toml atomically (temporary file, then rename).
 
     Parameters
     ----------
     path : str or Path
         Destination (its directory is created).
-    model : ThreeAxisModel
+    model : ThreeAxisModel or ControllerModel
         The axes.
     header : str, optional
         Extra comment line(s) at the top (e.g. where the values come from).
@@ -100,11 +176,13 @@ def write_axes_file(path, model: ThreeAxisModel, *, header: str | None = None) -
     """
     from drivesense.io import write_text_file
 
+    comments = [f"# {line}" for line in header.splitlines()] if header else []
+    if isinstance(model, ControllerModel):
+        lines = _controller_lines(model)
+        return write_text_file(path, "\n".join(lines[:1] + comments + lines[1:]) + "\n")
     if not isinstance(model, ThreeAxisModel):
-        raise ConfigError(f"write_axes_file needs a ThreeAxisModel, got {type(model).__name__}")
-    lines = ["# drivesense linear-motor axes (SI units)"]
-    if header:
-        lines += [f"# {line}" for line in header.splitlines()]
+        raise ConfigError(f"write_axes_file needs a ThreeAxisModel or ControllerModel, got {type(model).__name__}")
+    lines = ["# drivesense linear-motor axes (SI units)"] + comments
     for a in AXES:
         lines += ["", f"[{a}]"]
         for key, value in model.axis(a).to_dict().items():

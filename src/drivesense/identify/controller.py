@@ -1,0 +1,521 @@
+"""Identify the controller-rate machine model from a calibration cut and ordinary air cuts.
+
+::
+
+    report = ds.identify.identify_controller([air_cut, calibration_cut])
+    ds.io.write_axes_file("AXES.toml", report.model)      # feeds ModelBased / estimate --method model
+
+Per axis the logged current is linear in the parameters
+(:mod:`drivesense.machine.controller_model`)::
+
+    I = sum_j theta_j phi_j + c F,        K_m = 1 / c,   p_j = theta_j / c
+
+so every trace contributes, with or without forces: an air cut (no ``force_*``
+channel: ``F = 0``) determines the ``theta_j`` (friction, masses, the weight
+and offsets, ripple) in amperes; a calibration cut (``force_<axis>`` from a
+dynamometer) adds ``c``, the force constant with the controller's sign.  No
+dedicated moves are needed: whatever the part program excites is used, and
+more moves determine more terms.  The fit is one regularised least-squares
+problem per axis; the confidence intervals account for the autocorrelation of
+the residual (effective sample size).
+
+A term is kept only if the data determine it; each dropped term is reported
+with the reason:
+
+* *not excited* -- the traces do not move the axis that way (no reversal in
+  one direction, too little travel for a ripple period, no slow motion for a
+  Stribeck curve, another axis that never accelerates);
+* *indistinguishable* -- collinear with the kept terms (variance inflation);
+* *not determined* -- its 95 % confidence interval includes zero.
+
+The offset and the axis's own inertia are always kept.  The non-linear
+settings are chosen by the fit: the logging window (point samples or the
+trace interval), the delay of the drive channels behind the force reference
+(calibration cuts only; it becomes the estimate's latency), the Stribeck
+velocity and the ripple period (a search over spatial periods, or given).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
+from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, ControllerTerm, feature_column,
+                                                 friction_direction, term_unit)
+from drivesense.recording import Recording
+
+__all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "trace_axes"]
+
+#: Lowest trace rate the identification accepts [Hz].
+MIN_RATE_HZ = 25.0
+#: Terms kept whatever their confidence interval.
+_STRUCTURAL = ("offset",)
+_STRIBECK_SPEEDS = (0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 20e-3)
+_PERIODS = np.geomspace(3e-3, 60e-3, 240)
+_VIF_LIMIT = 1.0e4
+
+
+@dataclass
+class ControllerIdentification:
+    """Result of :func:`identify_controller`.
+
+    Attributes
+    ----------
+    model : ControllerModel
+        The identified model.
+    axes : dict
+        Per axis: ``terms`` (name -> value, ci95, unit), ``K_m`` and its
+        ``K_m_ci95`` [N/A], ``K_m_source``, ``dropped`` (name -> reason),
+        residual RMS on the air and calibration samples [A] and [N], sample counts.
+    limits : list of str
+        What the trace rate cannot resolve.
+    warnings : list of str
+        Physically doubtful results (a negative mass, ...), axes left out.
+    seconds : float
+        Wall time of the identification [s].
+    """
+
+    model: ControllerModel
+    axes: dict
+    limits: list
+    warnings: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        """Plain types for JSON."""
+        return {"model": self.model.to_dict(), "axes": self.axes, "limits": list(self.limits),
+                "warnings": list(self.warnings), "seconds": float(self.seconds)}
+
+
+def trace_axes(rec: Recording) -> list[str]:
+    """Axis letters of a controller trace: every ``<a>_current`` with ``<a>_velocity`` and ``<a>_acceleration``.
+
+    Parameters
+    ----------
+    rec : Recording
+        A trace.
+    """
+    out = []
+    for ch in rec.channels:
+        if ch.endswith("_current") and ch != "spindle_current":
+            a = ch[:-len("_current")]
+            if f"{a}_velocity" in rec and f"{a}_acceleration" in rec:
+                out.append(a)
+    return out
+
+
+# ------------------------------------------------------------------ data
+@dataclass
+class _AxisData:
+    """Concatenated samples of one axis: channels, force reference (NaN-free) and which samples are calibration."""
+
+    arrays: dict
+    force: np.ndarray        # shifted force reference [N] (0 on air samples)
+    is_cal: np.ndarray       # bool
+
+
+def _shifted(force: np.ndarray, delay_samples: float) -> np.ndarray:
+    """``F(t - d)``: the reference delayed like the drive channels, by linear interpolation (ends held)."""
+    if delay_samples == 0:
+        return force
+    idx = np.arange(force.size, dtype=float)
+    return np.interp(idx - delay_samples, idx, force)
+
+
+def _axis_data(traces: Sequence[Recording], axis: str, channels: Sequence[str], delay_samples: float) -> _AxisData:
+    parts: dict[str, list] = {c: [] for c in channels}
+    force, is_cal = [], []
+    for rec in traces:
+        has_force = _has_force(rec)
+        if has_force and f"force_{axis}" not in rec:
+            continue        # a cut without this axis's force: its load on the axis is unknown
+        for c in channels:
+            parts[c].append(np.asarray(rec[c], dtype=float))
+        n = rec.n_samples
+        force.append(_shifted(np.asarray(rec[f"force_{axis}"], dtype=float), delay_samples) if has_force
+                     else np.zeros(n))
+        is_cal.append(np.full(n, has_force))
+    if not force:
+        raise IdentificationError(f"axis {axis}: no trace can be used (every cut lacks force_{axis})")
+    return _AxisData({c: np.concatenate(v) for c, v in parts.items()}, np.concatenate(force), np.concatenate(is_cal))
+
+
+def _velocity_noise(velocity: np.ndarray) -> float:
+    """Standstill noise of a logged velocity [m/s]: robust spread of the slow samples, at least 10 um/s."""
+    slow = velocity[np.abs(velocity) < 5e-4]
+    if slow.size < 10:
+        return 1e-5
+    mad = 1.4826 * float(np.median(np.abs(slow - np.median(slow))))
+    return max(4.0 * mad, 1e-5)
+
+
+# ------------------------------------------------------------------ least squares
+@dataclass
+class _Fit:
+    names: list
+    theta: np.ndarray       # per column (terms, then c if fitted)
+    cov: np.ndarray
+    residual: np.ndarray
+    rss: float
+
+
+def _solve(X: np.ndarray, y: np.ndarray, names: list, ridge: float = 1e-9) -> _Fit:
+    """Ridge-regularised least squares on RMS-normalised columns; covariance with an effective sample size."""
+    scale = np.sqrt(np.mean(X ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    n, k = Xs.shape
+    A = Xs.T @ Xs + ridge * n * np.eye(k)
+    theta_s = np.linalg.solve(A, Xs.T @ y)
+    residual = y - Xs @ theta_s
+    rss = float(residual @ residual)
+    r0, r1 = residual[:-1], residual[1:]
+    rho = float(np.clip((r0 @ r1) / max(r0 @ r0, 1e-300), 0.0, 0.99)) if n > 2 else 0.0
+    n_eff = max(n * (1 - rho) / (1 + rho), k + 2.0)
+    s2 = rss / max(n - k, 1) * n / n_eff
+    Ainv = np.linalg.inv(A)
+    cov_s = s2 * Ainv @ (Xs.T @ Xs) @ Ainv
+    cov = cov_s / np.outer(scale, scale)
+    return _Fit(list(names), theta_s / scale, cov, residual, rss)
+
+
+def _vif(X: np.ndarray) -> np.ndarray:
+    """Variance inflation factor of each column (about zero, columns RMS-normalised)."""
+    scale = np.sqrt(np.mean(X ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    G = Xs.T @ Xs / Xs.shape[0]
+    try:
+        return np.diag(np.linalg.inv(G + 1e-12 * np.eye(G.shape[0])))
+    except np.linalg.LinAlgError:
+        return np.full(G.shape[0], np.inf)
+
+
+# ------------------------------------------------------------------ one axis
+@dataclass
+class _Settings:
+    window_s: float
+    v_eps: float
+    v_s: float = 0.0
+    period: float = 0.0
+
+
+def _columns(names, axis, arrays, st: _Settings) -> np.ndarray:
+    d = friction_direction(arrays[f"{axis}_velocity"], arrays[f"{axis}_acceleration"], st.window_s, st.v_eps)
+    return np.column_stack([feature_column(n, axis, arrays, window_s=st.window_s, v_eps=st.v_eps, v_s=st.v_s,
+                                           period=st.period, direction=d) for n in names])
+
+
+def _fit_terms(names, axis, data: _AxisData, st: _Settings, km: float | None) -> _Fit:
+    X = _columns(names, axis, data.arrays, st)
+    y = data.arrays[f"{axis}_current"].copy()
+    if km is None:
+        X = np.column_stack([X, data.force])
+        return _solve(X, y, [*names, "c"])
+    return _solve(X, y - data.force / km, list(names))
+
+
+def _excitation(axis: str, others: Sequence[str], data: _AxisData, st: _Settings, fs: float) -> dict[str, str]:
+    """Candidate terms the traces do not excite, with the reason."""
+    arr = data.arrays
+    v = arr[f"{axis}_velocity"]
+    d = friction_direction(v, arr[f"{axis}_acceleration"], st.window_s, st.v_eps)
+    moving = np.abs(d) > 0.5
+    out = {}
+    for name, count in (("coulomb_pos", np.sum(d > 0.5)), ("coulomb_neg", np.sum(d < -0.5))):
+        if count < 10:
+            out[name] = f"not excited: {count} samples move in the {name[-3:]} direction (need 10)"
+    if moving.sum() < 10 or float(np.std(np.abs(v[moving]))) < 1e-3:
+        out["viscous"] = "not excited: the axis moves at (almost) one speed only"
+    if f"{axis}_position" in arr:
+        span = float(np.ptp(arr[f"{axis}_position"]))
+        if span < 5e-3:
+            out["position"] = f"not excited: the axis travels {span * 1e3:.2g} mm (need 5 mm)"
+    else:
+        out["position"] = f"no channel {axis}_position"
+    slow = moving & (np.abs(v) < 2 * _STRIBECK_SPEEDS[-1])
+    if slow.sum() < 20:
+        out["stribeck"] = f"not excited: {int(slow.sum())} moving samples below {2 * _STRIBECK_SPEEDS[-1] * 1e3:g} mm/s"
+    for b in others:
+        a_b = arr[f"{b}_acceleration"]
+        if float(np.max(np.abs(a_b), initial=0.0)) < 0.05:
+            out[f"inertia_{b}"] = f"not excited: axis {b} never accelerates above 0.05 m/s^2"
+    travelled = float(np.sum(np.abs(v[moving]))) / fs
+    if f"{axis}_position" not in arr or travelled < 0.05:
+        out["ripple"] = f"not excited: {travelled * 1e3:.3g} mm of travel (need 50 mm for a position-periodic term)"
+    return out
+
+
+def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray, given: float | None):
+    """Spatial period [m] of the strongest position-periodic residual, or (0, reason)."""
+    s = data.arrays[f"{axis}_position"]
+    v = data.arrays[f"{axis}_velocity"]
+    periods = np.array([given]) if given else _PERIODS
+    gains = np.empty(periods.size)
+    r = residual - residual.mean()
+    base = float(r @ r)
+    for i, lam in enumerate(periods):
+        w = np.sinc(v * st.window_s / lam)
+        ph = 2 * math.pi * s / lam
+        X = np.column_stack([np.sin(ph) * w, np.cos(ph) * w])
+        coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+        gains[i] = float(np.sum((X @ coef) ** 2)) / base
+    best = int(np.argmax(gains))
+    span = float(np.ptp(s))
+    if span < 2 * periods[best]:
+        return 0.0, f"not excited: {span * 1e3:.3g} mm of travel cover less than two periods of {periods[best] * 1e3:.3g} mm"
+    if not given and gains[best] < max(5.0 * float(np.median(gains)), 0.01):
+        return 0.0, (f"not determined: no position-periodic residual stands out (best {periods[best] * 1e3:.3g} mm "
+                     f"explains {gains[best] * 100:.2g} % of the residual)")
+    return float(periods[best]), ""
+
+
+def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: float, fs: float,
+                   km: float | None, period: float | None) -> tuple[ControllerAxis, dict, list]:
+    st = _Settings(window_s=window_s, v_eps=_velocity_noise(data.arrays[f"{axis}_velocity"]))
+    dropped = _excitation(axis, others, data, st, fs)
+    base = [n for n in ("offset", f"inertia_{axis}", "coulomb_pos", "coulomb_neg", "viscous") if n not in dropped]
+    optional = [n for n in ("position", *(f"inertia_{b}" for b in others)) if n not in dropped]
+    names = base + optional
+    # Stribeck velocity: the best of a grid (same number of parameters)
+    if "stribeck" not in dropped:
+        rss = {}
+        for vs in _STRIBECK_SPEEDS:
+            st.v_s = vs
+            rss[vs] = _fit_terms([*names, "stribeck"], axis, data, st, km).rss
+        st.v_s = min(rss, key=rss.get)
+        names.append("stribeck")
+    # position-periodic terms at the strongest spatial period of the residual
+    if "ripple" not in dropped:
+        fit = _fit_terms(names, axis, data, st, km)
+        st.period, why = _best_period(axis, data, st, fit.residual, period)
+        if st.period > 0:
+            names += ["ripple1_sin", "ripple1_cos", "ripple2_sin", "ripple2_cos"]
+        else:
+            dropped["ripple"] = why
+    keep = [*_STRUCTURAL, f"inertia_{axis}"]
+    # collinear terms, then terms whose confidence interval includes zero, one at a time
+    while True:
+        X = _columns(names, axis, data.arrays, st)
+        vif = _vif(X)
+        candidates = [(vif[i], n) for i, n in enumerate(names) if n not in keep]
+        worst = max(candidates, default=None)
+        if worst is None or worst[0] < _VIF_LIMIT:
+            break
+        names.remove(worst[1])
+        dropped[worst[1]] = f"indistinguishable from the other terms (variance inflation {worst[0]:.3g})"
+    while True:
+        fit = _fit_terms(names, axis, data, st, km)
+        se = np.sqrt(np.maximum(np.diag(fit.cov), 0.0))
+        tvals = [(abs(fit.theta[i]) / se[i] if se[i] > 0 else np.inf, n) for i, n in enumerate(names) if n not in keep]
+        weakest = min(tvals, default=None)
+        if weakest is None or weakest[0] >= 1.96:
+            break
+        i = names.index(weakest[1])
+        names.remove(weakest[1])
+        gain = km if km is not None else 1.0 / fit.theta[-1]
+        dropped[weakest[1]] = (f"not determined: {fit.theta[i] * gain:.3g} +- {1.96 * se[i] * abs(gain):.2g} "
+                               f"{term_unit(weakest[1])} includes zero")
+        if weakest[1] == "stribeck":
+            st.v_s = 0.0
+        if weakest[1].startswith("ripple") and not any(n.startswith("ripple") for n in names):
+            st.period = 0.0
+    return _physical(axis, names, fit, st, km, data, dropped)
+
+
+def _physical(axis, names, fit: _Fit, st: _Settings, km, data: _AxisData, dropped) -> tuple[ControllerAxis, dict, list]:
+    """Coefficients in physical units (p = theta K_m) with delta-method confidence intervals."""
+    warnings = []
+    k = len(names)
+    if km is None:
+        c = fit.theta[k]
+        se_c = math.sqrt(max(fit.cov[k, k], 0.0))
+        if c == 0 or not abs(c) > 1.96 * se_c:
+            raise IdentificationError(
+                f"axis {axis}: the calibration cuts do not determine the force constant "
+                f"(1/K_m = {c:.3g} +- {1.96 * se_c:.2g} A/N); give it with --km {axis}=VALUE [N/A]")
+        K = 1.0 / c
+        K_ci = 1.96 * se_c / c ** 2
+        source = "identified from the calibration cut(s)"
+    else:
+        K, K_ci, source = float(km), 0.0, "given (--km)"
+    terms = []
+    for i, n in enumerate(names):
+        if km is None:
+            grad = np.zeros(k + 1)
+            grad[i] = K
+            grad[k] = -fit.theta[i] * K ** 2
+            var = float(grad @ fit.cov @ grad)
+        else:
+            var = K ** 2 * fit.cov[i, i]
+        terms.append(ControllerTerm(n, float(fit.theta[i] * K), float(1.96 * math.sqrt(max(var, 0.0)))))
+    mass = next(t for t in terms if t.name == f"inertia_{axis}").value
+    if mass <= 0:
+        warnings.append(f"axis {axis}: the moved mass came out {mass:.3g} kg (<= 0): the traces hardly accelerate "
+                        "the axis or its current is not in the same frame as its motion")
+    model = ControllerAxis(K_m=float(K), terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=float(K_ci),
+                           v_s=st.v_s if "stribeck" in names else 0.0,
+                           period=st.period if any(n.startswith("ripple") for n in names) else 0.0,
+                           dropped=dict(dropped))
+    res_a = fit.residual
+    report = {"K_m": float(K), "K_m_ci95": float(K_ci), "K_m_source": source,
+              "terms": {t.name: {"value": t.value, "ci95": t.ci95, "unit": term_unit(t.name)} for t in terms},
+              "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "dropped": dict(dropped),
+              "samples_air": int(np.sum(~data.is_cal)), "samples_calibration": int(np.sum(data.is_cal)),
+              "residual_rms_a": {"air": _rms(res_a[~data.is_cal]), "calibration": _rms(res_a[data.is_cal])},
+              "residual_rms_n": {"air": _rms(res_a[~data.is_cal], abs(K)),
+                                 "calibration": _rms(res_a[data.is_cal], abs(K))}}
+    return model, report, warnings
+
+
+def _rms(x: np.ndarray, scale: float = 1.0) -> float | None:
+    return float(np.sqrt(np.mean(x ** 2))) * scale if x.size else None
+
+
+# ------------------------------------------------------------------ the whole machine
+def _check_traces(traces: Sequence[Recording]) -> tuple[float, list[str]]:
+    if isinstance(traces, Recording):
+        traces = [traces]
+    if not traces:
+        raise ConfigError("identify nc needs at least one trace (air cuts and/or calibration cuts)")
+    for i, rec in enumerate(traces):
+        if not isinstance(rec, Recording):
+            raise ConfigError(f"trace {i + 1}: expected a Recording, got {type(rec).__name__}")
+    rates = sorted({round(rec.fs, 6) for rec in traces})
+    if len(rates) > 1:
+        raise ConfigError(f"the traces have different rates ({', '.join(f'{r:g}' for r in rates)} Hz); "
+                          "bring them to one with --resample HZ")
+    fs = traces[0].fs
+    if fs < MIN_RATE_HZ:
+        raise ConfigError(f"trace rate {fs:g} Hz is below {MIN_RATE_HZ:g} Hz: accelerations and friction "
+                          "reversals cannot be resolved; log the drives at 25 Hz or faster")
+    axes = trace_axes(traces[0])
+    if not axes:
+        raise MissingChannelError("no axis found: a controller trace needs <axis>_current, <axis>_velocity and "
+                                  "<axis>_acceleration channels (e.g. x_current [A], x_velocity [mm/s])")
+    for rec in traces[1:]:
+        missing = [a for a in axes if a not in trace_axes(rec)]
+        if missing:
+            raise MissingChannelError(f"trace '{rec.name or '?'}' lacks axis/axes {', '.join(missing)} "
+                                      f"that '{traces[0].name or 'the first trace'}' has")
+    return fs, axes
+
+
+def _limits(fs: float, window_s: float, axes_models: Mapping[str, ControllerAxis]) -> list[str]:
+    out = [f"trace rate {fs:g} Hz: process-force content above {fs / 2:g} Hz (tooth passing, chatter, impacts) "
+           "is not resolved; the estimate is the force averaged over the logging window"
+           + (f" of {window_s * 1e3:.3g} ms" if window_s > 0 else ""),
+           f"reversals and accelerations shorter than {2e3 / fs:.3g} ms are smeared (friction direction and "
+           "inertia are window means)",
+           "structural modes (ball-screw axial mode, column rocking) lie above the Nyquist frequency and are not modelled"]
+    for a, m in axes_models.items():
+        if m.period > 0 and window_s > 0:
+            out.append(f"axis {a}: the {m.period * 1e3:.3g} mm ripple averages out above "
+                       f"{m.period / window_s * 1e3:.3g} mm/s")
+    return out
+
+
+def _has_force(rec: Recording) -> bool:
+    return any(c.startswith("force_") for c in rec.channels)
+
+
+def _base_score(traces, axes, channels, km, T: float, d: float) -> float:
+    """Residual of the base terms summed over the axes, each relative to its current's variance."""
+    score = 0.0
+    for a in axes:
+        data = _axis_data(traces, a, channels[a], d)
+        st = _Settings(window_s=T, v_eps=_velocity_noise(data.arrays[f"{a}_velocity"]))
+        fit = _fit_terms(["offset", f"inertia_{a}", "coulomb_pos", "coulomb_neg", "viscous"], a, data, st, km.get(a))
+        score += fit.rss / max(float(np.var(data.arrays[f"{a}_current"])), 1e-30) / fit.residual.size
+    return score
+
+
+def _window_and_delay(traces, axes, channels, km, fs: float, window_s, delay_s, has_cal: bool) -> tuple[float, float]:
+    """Logging window [s] and delay [samples] of the best base fit: a coarse grid, then a fine one."""
+    windows = [window_s] if window_s is not None else [0.0, 1.0 / fs]
+    if delay_s is not None or not has_cal:
+        delay = (delay_s or 0.0) * fs
+        return min(windows, key=lambda T: _base_score(traces, axes, channels, km, T, delay)), delay
+    top = max(2.0, 0.04 * fs)
+    best = min(((_base_score(traces, axes, channels, km, T, d), T, d) for T in windows
+                for d in np.arange(0.0, top + 1e-9, 0.5)))
+    _, T, d0 = best
+    fine = [d for d in np.arange(d0 - 0.4, d0 + 0.41, 0.1) if d >= 0]
+    _, d = min((_base_score(traces, axes, channels, km, T, d), d) for d in fine)
+    return T, float(d)
+
+
+def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] | None = None,
+                        window_s: float | None = None, delay_s: float | None = None,
+                        period: Mapping[str, float] | None = None) -> ControllerIdentification:
+    """Identify a :class:`~drivesense.machine.controller_model.ControllerModel` from controller traces.
+
+    Parameters
+    ----------
+    traces : sequence of Recording
+        Controller traces at one rate (>= 25 Hz) with ``<a>_current`` [A],
+        ``<a>_velocity`` [m/s], ``<a>_acceleration`` [m/s^2] and, for the
+        position terms, ``<a>_position`` [m] per axis.  Traces with
+        ``force_<a>`` [N] are calibration cuts; traces without any
+        ``force_*`` are air cuts (process force zero).
+    km : mapping of str to float, optional
+        Force constants [N/A] of some axes, given instead of identified (an
+        axis without force in the calibration cuts needs one); the sign is
+        the controller's (as logged).
+    window_s : float, optional
+        Logging window [s] (default: the better of point samples and the trace interval).
+    delay_s : float, optional
+        Delay of the drive channels behind the force reference [s] (default:
+        the best of 0-2 trace intervals on the calibration cuts; 0 without).
+    period : mapping of str to float, optional
+        Spatial period of an axis's position-periodic terms [m] (e.g. the
+        screw lead; default: searched over 3-60 mm).
+
+    Returns
+    -------
+    ControllerIdentification
+
+    Raises
+    ------
+    ConfigError
+        No traces, mixed rates, a rate below 25 Hz, bad ``km``.
+    MissingChannelError
+        A trace lacks an axis's channels.
+    IdentificationError
+        An axis's force constant is determined neither by the calibration cuts nor given.
+    """
+    started = time.perf_counter()
+    traces = [traces] if isinstance(traces, Recording) else list(traces)
+    fs, axes = _check_traces(traces)
+    km = dict(km or {})
+    for a, value in km.items():
+        if a not in axes:
+            raise ConfigError(f"--km names axis {a!r}, which the traces lack (they have {', '.join(axes)})")
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
+            raise ConfigError(f"--km {a}={value!r}: the force constant must be a nonzero number [N/A]")
+    has_cal = any(_has_force(rec) for rec in traces)
+    uncalibrated = [a for a in axes if a not in km and not any(f"force_{a}" in rec for rec in traces)]
+    if uncalibrated:
+        raise IdentificationError(
+            f"no calibration cut holds force_{'/'.join(uncalibrated)}: give a trace with dynamometer forces "
+            f"(force_x [N], ...) or the force constants with --km {uncalibrated[0]}=VALUE [N/A]")
+    channels = {a: [f"{b}_{c}" for b in axes for c in ("current", "velocity", "acceleration")]
+                + [f"{a}_position"] * (f"{a}_position" in traces[0]) for a in axes}
+    T, d = _window_and_delay(traces, axes, channels, km, fs, window_s, delay_s, has_cal)
+    models, reports, warnings = {}, {}, []
+    for a in axes:
+        data = _axis_data(traces, a, channels[a], d)
+        others = [b for b in axes if b != a]
+        models[a], reports[a], warn = _identify_axis(a, others, data, T, fs, km.get(a), (period or {}).get(a))
+        warnings.extend(warn)
+    # the traces' own declared delay (meta nc_delay_s) is added to the latency by the estimator: keep the rest
+    declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if _has_force(rec)), default=0.0)
+    model = ControllerModel(axes=models, window_s=float(T), delay_s=max(float(d / fs) - declared, 0.0),
+                            rate_hz=float(fs))
+    return ControllerIdentification(model=model, axes=reports, limits=_limits(fs, T, models), warnings=warnings,
+                                    seconds=time.perf_counter() - started)
