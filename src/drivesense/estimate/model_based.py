@@ -35,7 +35,8 @@ friction by twice the breakaway force from sample to sample.
 With a :class:`~drivesense.machine.controller_model.ControllerModel` (any
 drive type, from ``identify nc``: :func:`drivesense.identify.controller.identify_controller`)
 the force of each axis is ``K_m I - sum_j p_j phi_j`` with the terms the
-identification kept; the method is stateless and its latency is the model's
+identification kept; its state is the presliding state of the axes with
+``x_pre > 0`` (carried by streams) and its latency is the model's
 ``delay_s`` (the drive channels' logging delay behind the process force).
 ``fit(traces)`` then identifies that model from air and calibration cuts.
 """
@@ -182,7 +183,7 @@ class ModelBased(ForceEstimator):
         """
         model = self._require_model()
         if isinstance(model, ControllerModel):
-            return {f"force_{a}": model.process_force(a, arrays) for a in self.axes}
+            return {f"force_{a}": model.process_force(a, arrays, state) for a in self.axes}
         out = {}
         for a in self.axes:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)

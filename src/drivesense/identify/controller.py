@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
-from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, ControllerTerm, feature_column,
-                                                 friction_direction, term_unit)
+from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, ControllerTerm, axis_direction,
+                                                 feature_column, friction_direction, term_unit)
 from drivesense.recording import Recording
 
 __all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "trace_axes"]
@@ -58,6 +58,14 @@ _STRUCTURAL = ("offset",)
 _STRIBECK_SPEEDS = (0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 20e-3)
 _PERIODS = np.geomspace(3e-3, 60e-3, 240)
 _VIF_LIMIT = 1.0e4
+#: Friction, masses and offsets from the air cuts alone, then the force constant (when both kinds are given).
+TWO_STAGE = True
+#: Speed above which an axis slides for the force constant's fit [m/s].
+_SLIDING_SPEED = 2e-3
+#: Presliding distances tried [m] (0: the window-mean sign of the velocity).
+_PRESLIDING = (0.0, 2e-6, 5e-6, 10e-6, 20e-6, 50e-6, 100e-6)
+#: Relaxation times of the friction held at standstill tried [s] (0: none).
+_HOLD_TIMES = (0.0, 0.3, 1.0, 3.0, 10.0)
 
 
 @dataclass
@@ -117,6 +125,7 @@ class _AxisData:
     arrays: dict
     force: np.ndarray        # shifted force reference [N] (0 on air samples)
     is_cal: np.ndarray       # bool
+    starts: np.ndarray       # first sample of each trace (the presliding state restarts there)
 
 
 def _shifted(force: np.ndarray, delay_samples: float) -> np.ndarray:
@@ -142,7 +151,9 @@ def _axis_data(traces: Sequence[Recording], axis: str, channels: Sequence[str], 
         is_cal.append(np.full(n, has_force))
     if not force:
         raise IdentificationError(f"axis {axis}: no trace can be used (every cut lacks force_{axis})")
-    return _AxisData({c: np.concatenate(v) for c, v in parts.items()}, np.concatenate(force), np.concatenate(is_cal))
+    starts = np.cumsum([0] + [f.size for f in force[:-1]])
+    return _AxisData({c: np.concatenate(v) for c, v in parts.items()}, np.concatenate(force), np.concatenate(is_cal),
+                     starts)
 
 
 def _velocity_noise(velocity: np.ndarray) -> float:
@@ -203,21 +214,77 @@ class _Settings:
     v_eps: float
     v_s: float = 0.0
     period: float = 0.0
+    x_pre: float = 0.0
+    hold_time: float = 0.0
+    fs: float = 1.0
 
 
-def _columns(names, axis, arrays, st: _Settings) -> np.ndarray:
-    d = friction_direction(arrays[f"{axis}_velocity"], arrays[f"{axis}_acceleration"], st.window_s, st.v_eps)
-    return np.column_stack([feature_column(n, axis, arrays, window_s=st.window_s, v_eps=st.v_eps, v_s=st.v_s,
+def _direction(axis: str, data: _AxisData, st: _Settings) -> np.ndarray:
+    """Friction direction over the concatenated traces, the presliding state restarting with each trace."""
+    if st.x_pre <= 0:
+        return friction_direction(data.arrays[f"{axis}_velocity"], data.arrays[f"{axis}_acceleration"],
+                                  st.window_s, st.v_eps)
+    bounds = [*data.starts, data.force.size]
+    pos = data.arrays[f"{axis}_position"]
+    decay = math.exp(-1.0 / (st.fs * st.hold_time)) if st.hold_time > 0 else 1.0
+    return np.concatenate([axis_direction(axis, {f"{axis}_position": pos[a:b]}, window_s=st.window_s, v_eps=st.v_eps,
+                                          x_pre=st.x_pre, hold_decay=decay) for a, b in zip(bounds[:-1], bounds[1:])])
+
+
+def _columns(names, axis, data: _AxisData, st: _Settings) -> np.ndarray:
+    d = _direction(axis, data, st)
+    return np.column_stack([feature_column(n, axis, data.arrays, window_s=st.window_s, v_eps=st.v_eps, v_s=st.v_s,
                                            period=st.period, direction=d) for n in names])
 
 
 def _fit_terms(names, axis, data: _AxisData, st: _Settings, km: float | None) -> _Fit:
-    X = _columns(names, axis, data.arrays, st)
-    y = data.arrays[f"{axis}_current"].copy()
-    if km is None:
-        X = np.column_stack([X, data.force])
-        return _solve(X, y, [*names, "c"])
-    return _solve(X, y - data.force / km, list(names))
+    X = _columns(names, axis, data, st)
+    y = data.arrays[f"{axis}_current"]
+    if km is not None:
+        return _solve(X, y - data.force / km, list(names))
+    return _fit_matrix(X, y, data, list(names), axis, st.v_eps)
+
+
+def _fit_matrix(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, axis: str, v_eps: float) -> _Fit:
+    """Air cuts and calibration cuts together: two stages when both are there in numbers, else jointly."""
+    air = ~data.is_cal
+    if TWO_STAGE and air.sum() >= max(10 * len(names), 200) and data.is_cal.sum() >= 50:
+        sliding = data.is_cal & (np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * v_eps, _SLIDING_SPEED))
+        return _two_stage(X, y, data, names, sliding if sliding.sum() >= 50 else data.is_cal)
+    return _solve(np.column_stack([X, data.force]), y, [*names, "c"])
+
+
+def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, sliding: np.ndarray) -> _Fit:
+    """The machine terms from the air cuts alone (no force to confuse them), then ``c`` on the sliding calibration samples.
+
+    In a cut the process force and the friction direction flip together with
+    the feed direction, so a joint fit trades the force constant against the
+    friction level; the air cut, with the same moves and no force, fixes the
+    friction first.  A standing axis shares a process force with its guides'
+    and nut's presliding spring, so the force constant comes from the samples
+    where the axis slides (friction at its sliding level).
+    """
+    air, cal = ~data.is_cal, data.is_cal
+    first = _solve(X[air], y[air], names)
+    r = y[sliding] - X[sliding] @ first.theta
+    f = data.force[sliding]
+    ff = float(f @ f)
+    if ff <= 0:
+        raise IdentificationError("the calibration cuts hold no force while the axis slides")
+    c = float(f @ r) / ff
+    fit_res = r - c * f
+    res_cal = y[cal] - X[cal] @ first.theta - c * data.force[cal]
+    r0, r1 = fit_res[:-1], fit_res[1:]
+    rho = float(np.clip((r0 @ r1) / max(r0 @ r0, 1e-300), 0.0, 0.99))
+    s2 = float(fit_res @ fit_res) / max(fit_res.size - 1, 1) * (1 + rho) / (1 - rho)
+    k = len(names)
+    cov = np.zeros((k + 1, k + 1))
+    cov[:k, :k] = first.cov
+    cov[k, k] = s2 / ff
+    residual = np.empty_like(y)
+    residual[air] = first.residual
+    residual[cal] = res_cal
+    return _Fit([*names, "c"], np.append(first.theta, c), cov, residual, float(residual @ residual))
 
 
 def _excitation(axis: str, others: Sequence[str], data: _AxisData, st: _Settings, fs: float) -> dict[str, str]:
@@ -277,11 +344,19 @@ def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray
 
 def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: float, fs: float,
                    km: float | None, period: float | None) -> tuple[ControllerAxis, dict, list]:
-    st = _Settings(window_s=window_s, v_eps=_velocity_noise(data.arrays[f"{axis}_velocity"]))
+    st = _Settings(window_s=window_s, v_eps=_velocity_noise(data.arrays[f"{axis}_velocity"]), fs=fs)
     dropped = _excitation(axis, others, data, st, fs)
     base = [n for n in ("offset", f"inertia_{axis}", "coulomb_pos", "coulomb_neg", "viscous") if n not in dropped]
     optional = [n for n in ("position", *(f"inertia_{b}" for b in others)) if n not in dropped]
     names = base + optional
+    # presliding: the Dahl state of the logged position (friction kept at standstill), if it fits better
+    if f"{axis}_position" in data.arrays and "coulomb_pos" in names:
+        rss = {}
+        for x_pre in _PRESLIDING:
+            for hold in _HOLD_TIMES if x_pre > 0 else (0.0,):
+                st.x_pre, st.hold_time = x_pre, hold
+                rss[(x_pre, hold)] = _fit_terms(names, axis, data, st, km).rss
+        st.x_pre, st.hold_time = min(rss, key=rss.get)
     # Stribeck velocity: the best of a grid (same number of parameters)
     if "stribeck" not in dropped:
         rss = {}
@@ -301,7 +376,7 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     keep = [*_STRUCTURAL, f"inertia_{axis}"]
     # collinear terms, then terms whose confidence interval includes zero, one at a time
     while True:
-        X = _columns(names, axis, data.arrays, st)
+        X = _columns(names, axis, data, st)
         vif = _vif(X)
         candidates = [(vif[i], n) for i, n in enumerate(names) if n not in keep]
         worst = max(candidates, default=None)
@@ -361,11 +436,12 @@ def _physical(axis, names, fit: _Fit, st: _Settings, km, data: _AxisData, droppe
     model = ControllerAxis(K_m=float(K), terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=float(K_ci),
                            v_s=st.v_s if "stribeck" in names else 0.0,
                            period=st.period if any(n.startswith("ripple") for n in names) else 0.0,
-                           dropped=dict(dropped))
+                           x_pre=st.x_pre, hold_time=st.hold_time, dropped=dict(dropped))
     res_a = fit.residual
     report = {"K_m": float(K), "K_m_ci95": float(K_ci), "K_m_source": source,
               "terms": {t.name: {"value": t.value, "ci95": t.ci95, "unit": term_unit(t.name)} for t in terms},
-              "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "dropped": dict(dropped),
+              "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "x_pre_m": st.x_pre, "hold_time_s": st.hold_time,
+              "dropped": dict(dropped),
               "samples_air": int(np.sum(~data.is_cal)), "samples_calibration": int(np.sum(data.is_cal)),
               "residual_rms_a": {"air": _rms(res_a[~data.is_cal]), "calibration": _rms(res_a[data.is_cal])},
               "residual_rms_n": {"air": _rms(res_a[~data.is_cal], abs(K)),
@@ -424,29 +500,48 @@ def _has_force(rec: Recording) -> bool:
     return any(c.startswith("force_") for c in rec.channels)
 
 
-def _base_score(traces, axes, channels, km, T: float, d: float) -> float:
-    """Residual of the base terms summed over the axes, each relative to its current's variance."""
-    score = 0.0
+def _base_scorer(traces, axes, channels, km, T: float, fs: float):
+    """``score(d)``: residual of the base terms at delay ``d`` [samples], summed over the axes (each relative
+    to its current's variance).  The features and the air-cut stage do not depend on ``d``: built once."""
+    parts = []
     for a in axes:
-        data = _axis_data(traces, a, channels[a], d)
-        st = _Settings(window_s=T, v_eps=_velocity_noise(data.arrays[f"{a}_velocity"]))
-        fit = _fit_terms(["offset", f"inertia_{a}", "coulomb_pos", "coulomb_neg", "viscous"], a, data, st, km.get(a))
-        score += fit.rss / max(float(np.var(data.arrays[f"{a}_current"])), 1e-30) / fit.residual.size
+        data = _axis_data(traces, a, channels[a], 0.0)
+        st = _Settings(window_s=T, v_eps=_velocity_noise(data.arrays[f"{a}_velocity"]), fs=fs)
+        X = _columns(["offset", f"inertia_{a}", "coulomb_pos", "coulomb_neg", "viscous"], a, data, st)
+        parts.append((a, data, X, max(float(np.var(data.arrays[f"{a}_current"])), 1e-30)))
+
+    def score(d: float) -> float:
+        total = 0.0
+        for a, data, X, var in parts:
+            shifted = _AxisData(data.arrays, _shift_segments(data, d), data.is_cal, data.starts)
+            y = data.arrays[f"{a}_current"]
+            if km.get(a) is not None:
+                fit = _solve(X, y - shifted.force / km[a], ["b"] * X.shape[1])
+            else:
+                fit = _fit_matrix(X, y, shifted, ["b"] * X.shape[1], a, _velocity_noise(data.arrays[f"{a}_velocity"]))
+            total += fit.rss / var / y.size
+        return total
+
     return score
+
+
+def _shift_segments(data: _AxisData, d: float) -> np.ndarray:
+    bounds = [*data.starts, data.force.size]
+    return np.concatenate([_shifted(data.force[a:b], d) for a, b in zip(bounds[:-1], bounds[1:])])
 
 
 def _window_and_delay(traces, axes, channels, km, fs: float, window_s, delay_s, has_cal: bool) -> tuple[float, float]:
     """Logging window [s] and delay [samples] of the best base fit: a coarse grid, then a fine one."""
     windows = [window_s] if window_s is not None else [0.0, 1.0 / fs]
+    scorers = {T: _base_scorer(traces, axes, channels, km, T, fs) for T in windows}
     if delay_s is not None or not has_cal:
         delay = (delay_s or 0.0) * fs
-        return min(windows, key=lambda T: _base_score(traces, axes, channels, km, T, delay)), delay
+        return min(windows, key=lambda T: scorers[T](delay)), delay
+    step = max(0.5, 1e-3 * fs)
     top = max(2.0, 0.04 * fs)
-    best = min(((_base_score(traces, axes, channels, km, T, d), T, d) for T in windows
-                for d in np.arange(0.0, top + 1e-9, 0.5)))
-    _, T, d0 = best
-    fine = [d for d in np.arange(d0 - 0.4, d0 + 0.41, 0.1) if d >= 0]
-    _, d = min((_base_score(traces, axes, channels, km, T, d), d) for d in fine)
+    _, T, d0 = min((scorers[T](d), T, d) for T in windows for d in np.arange(0.0, top + 1e-9, step))
+    fine = [d for d in np.arange(d0 - step + 0.1, d0 + step - 0.05, 0.1) if d >= 0]
+    _, d = min((scorers[T](d), d) for d in fine)
     return T, float(d)
 
 
@@ -489,6 +584,14 @@ def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] 
     IdentificationError
         An axis's force constant is determined neither by the calibration cuts nor given.
     """
+    from threadpoolctl import threadpool_limits
+
+    # many small least-squares problems: BLAS threads only contend (50 ms instead of 2 ms per fit on 2 busy cores)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _identify(traces, km, window_s, delay_s, period)
+
+
+def _identify(traces, km, window_s, delay_s, period) -> ControllerIdentification:
     started = time.perf_counter()
     traces = [traces] if isinstance(traces, Recording) else list(traces)
     fs, axes = _check_traces(traces)
@@ -508,11 +611,19 @@ def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] 
                 + [f"{a}_position"] * (f"{a}_position" in traces[0]) for a in axes}
     T, d = _window_and_delay(traces, axes, channels, km, fs, window_s, delay_s, has_cal)
     models, reports, warnings = {}, {}, []
+    left_out = {}
     for a in axes:
         data = _axis_data(traces, a, channels[a], d)
         others = [b for b in axes if b != a]
-        models[a], reports[a], warn = _identify_axis(a, others, data, T, fs, km.get(a), (period or {}).get(a))
+        try:
+            models[a], reports[a], warn = _identify_axis(a, others, data, T, fs, km.get(a), (period or {}).get(a))
+        except IdentificationError as exc:      # one axis without a force constant does not sink the others
+            left_out[a] = str(exc)
+            continue
         warnings.extend(warn)
+    if not models:
+        raise IdentificationError("; ".join(left_out.values()))
+    warnings.extend(f"axis {a} left out of the model: {why}" for a, why in left_out.items())
     # the traces' own declared delay (meta nc_delay_s) is added to the latency by the estimator: keep the rest
     declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if _has_force(rec)), default=0.0)
     model = ControllerModel(axes=models, window_s=float(T), delay_s=max(float(d / fs) - declared, 0.0),

@@ -40,14 +40,20 @@ means:
 * the friction direction ``sigma`` is the mean of ``sgn(v)`` over the window:
   ``clip(v / max(|a| T / 2, v_eps), -1, 1)`` (a reversal inside the window
   averages the friction out in proportion to the time spent on each side);
-  ``v_eps`` is the standstill noise level of the logged velocity;
+  ``v_eps`` is the standstill noise level of the logged velocity.  An axis
+  with a presliding distance ``x_pre > 0`` uses instead the Dahl state of its
+  logged position (:func:`~drivesense.machine.presliding.presliding_direction`):
+  a standing axis keeps the friction its last motion left in the guides and
+  the screw nut -- on a ball-screw axis the largest force at standstill --
+  and a force on a standing axis is credited with what its presliding
+  spring holds.  The state is the model's only memory; streams carry it;
 * a position-periodic term (ball-screw torque ripple and lead error at the
   screw lead, linear-motor cogging at the pole pitch) travels ``v T`` in the
   window: its mean is the term at the logged position times
   ``w_h(v) = sinc(h v T / period)``.
 
 Everything else is linear in the logged values, so it commutes with the
-window.  The model is stateless: streaming equals batch by construction.
+window.  Streaming equals batch: the presliding state is carried.
 """
 
 from __future__ import annotations
@@ -59,9 +65,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, MissingChannelError
+from drivesense.machine.presliding import carried_presliding_direction
 
 __all__ = ["ControllerTerm", "ControllerAxis", "ControllerModel", "TERM_UNITS", "term_unit",
-           "friction_direction", "feature_column", "features_needed"]
+           "friction_direction", "axis_direction", "feature_column", "features_needed"]
 
 #: Unit of each term's coefficient, by name prefix.
 TERM_UNITS = {"offset": "N", "position": "N/m", "inertia": "kg", "coulomb": "N", "viscous": "N s/m",
@@ -100,6 +107,34 @@ def friction_direction(velocity: np.ndarray, acceleration: np.ndarray, window_s:
     return np.clip(velocity / scale, -1.0, 1.0)
 
 
+def axis_direction(axis: str, arrays: Mapping[str, np.ndarray], *, window_s: float, v_eps: float,
+                   x_pre: float = 0.0, hold_decay: float = 1.0, state: dict | None = None) -> np.ndarray:
+    """Friction direction of axis ``axis`` in [-1, 1]: the Dahl state (``x_pre > 0``) or :func:`friction_direction`.
+
+    Parameters
+    ----------
+    axis : str
+        Axis letter.
+    arrays : mapping of str to ndarray
+        Logged channels in SI: ``{axis}_position`` [m] (Dahl), ``{axis}_velocity`` [m/s], ``{axis}_acceleration`` [m/s^2].
+    window_s : float
+        Logging window [s].
+    v_eps : float
+        Standstill velocity noise [m/s].
+    x_pre : float
+        Presliding distance [m] (0: the window-mean sign).
+    hold_decay : float
+        Per-sample relaxation factor of the presliding state [-] (1: none).
+    state : dict, optional
+        Presliding state carried between stream chunks (updated in place).
+    """
+    if x_pre > 0:
+        return carried_presliding_direction(np.asarray(arrays[f"{axis}_position"], dtype=float), x_pre, state, axis,
+                                            hold_decay)
+    return friction_direction(np.asarray(arrays[f"{axis}_velocity"], dtype=float),
+                              np.asarray(arrays[f"{axis}_acceleration"], dtype=float), window_s, v_eps)
+
+
 def _ripple_parts(name: str) -> tuple[int, str]:
     body = name[len("ripple"):]
     harmonic, _, part = body.partition("_")
@@ -108,7 +143,7 @@ def _ripple_parts(name: str) -> tuple[int, str]:
     return int(harmonic), part
 
 
-def features_needed(axis: str, names: Sequence[str]) -> tuple[str, ...]:
+def features_needed(axis: str, names: Sequence[str], x_pre: float = 0.0) -> tuple[str, ...]:
     """Channels the terms ``names`` of axis ``axis`` read (its current and velocity always).
 
     Parameters
@@ -117,8 +152,10 @@ def features_needed(axis: str, names: Sequence[str]) -> tuple[str, ...]:
         Axis letter.
     names : sequence of str
         Term names.
+    x_pre : float
+        Presliding distance [m] (> 0: the position is read for the Dahl state).
     """
-    need = [f"{axis}_current", f"{axis}_velocity", f"{axis}_acceleration"]
+    need = [f"{axis}_current", f"{axis}_velocity", f"{axis}_acceleration"] + [f"{axis}_position"] * (x_pre > 0)
     for n in names:
         if n == "position" or n.startswith("ripple"):
             need.append(f"{axis}_position")
@@ -228,6 +265,10 @@ class ControllerAxis:
         Stribeck velocity [m/s] (0: no ``stribeck`` term).
     period : float
         Period of the ``ripple`` terms [m] (0: none).
+    x_pre : float
+        Presliding distance of the friction direction's Dahl state [m] (0: the window-mean sign).
+    hold_time : float
+        Relaxation time of the friction held at standstill [s] (0: it does not relax).
     dropped : dict of str to str
         Candidate terms the data did not determine, with the reason.
     """
@@ -238,6 +279,8 @@ class ControllerAxis:
     K_m_ci95: float = 0.0
     v_s: float = 0.0
     period: float = 0.0
+    x_pre: float = 0.0
+    hold_time: float = 0.0
     dropped: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -252,6 +295,20 @@ class ControllerAxis:
             raise ConfigError("a stribeck term needs v_s > 0 [m/s]")
         if any(n.startswith("ripple") for n in names) and not self.period > 0:
             raise ConfigError("ripple terms need a period > 0 [m]")
+        if not (math.isfinite(self.x_pre) and self.x_pre >= 0):
+            raise ConfigError(f"x_pre must be a distance >= 0 [m], got {self.x_pre!r}")
+        if not (math.isfinite(self.hold_time) and self.hold_time >= 0):
+            raise ConfigError(f"hold_time must be a time >= 0 [s], got {self.hold_time!r}")
+
+    def hold_decay(self, fs: float) -> float:
+        """Per-sample factor [-] of the held friction's relaxation at rate ``fs`` [Hz] (1: none).
+
+        Parameters
+        ----------
+        fs : float
+            Trace rate [Hz].
+        """
+        return math.exp(-1.0 / (fs * self.hold_time)) if self.hold_time > 0 else 1.0
 
     def term(self, name: str) -> ControllerTerm | None:
         """The kept term ``name``, or None.
@@ -275,9 +332,11 @@ class ControllerAxis:
         return t.value if t is not None else 0.0
 
     def to_dict(self) -> dict:
-        """Plain types (SI): ``K_m``, ``K_m_ci95``, ``v_eps``, ``v_s``, ``period``, ``terms``, ``dropped``."""
+        """Plain types (SI): ``K_m``, ``K_m_ci95``, ``v_eps``, ``v_s``, ``period``, ``x_pre``, ``hold_time``,
+        ``terms``, ``dropped``."""
         return {"K_m": float(self.K_m), "K_m_ci95": float(self.K_m_ci95), "v_eps": float(self.v_eps),
-                "v_s": float(self.v_s), "period": float(self.period),
+                "v_s": float(self.v_s), "period": float(self.period), "x_pre": float(self.x_pre),
+                "hold_time": float(self.hold_time),
                 "terms": {t.name: [float(t.value), float(t.ci95)] for t in self.terms},
                 "dropped": dict(self.dropped)}
 
@@ -294,7 +353,7 @@ class ControllerAxis:
         """
         if not isinstance(values, Mapping):
             raise ConfigError(f"{source}: expected a table, got {type(values).__name__}")
-        known = {"K_m", "K_m_ci95", "v_eps", "v_s", "period", "terms", "dropped"}
+        known = {"K_m", "K_m_ci95", "v_eps", "v_s", "period", "x_pre", "hold_time", "terms", "dropped"}
         unknown = sorted(set(values) - known)
         missing = [k for k in ("K_m", "v_eps", "terms") if k not in values]
         if unknown or missing:
@@ -316,7 +375,9 @@ class ControllerAxis:
         try:
             return cls(K_m=float(values["K_m"]), terms=tuple(terms), v_eps=float(values["v_eps"]),
                        K_m_ci95=float(values.get("K_m_ci95", 0.0)), v_s=float(values.get("v_s", 0.0)),
-                       period=float(values.get("period", 0.0)), dropped=dict(values.get("dropped", {})))
+                       period=float(values.get("period", 0.0)), x_pre=float(values.get("x_pre", 0.0)),
+                       hold_time=float(values.get("hold_time", 0.0)),
+                       dropped=dict(values.get("dropped", {})))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{source}: {exc}") from None
 
@@ -373,10 +434,10 @@ class ControllerModel:
         """
         out: list[str] = []
         for a in axes or tuple(self.axes):
-            out.extend(features_needed(a, [t.name for t in self.axis(a).terms]))
+            out.extend(features_needed(a, [t.name for t in self.axis(a).terms], self.axis(a).x_pre))
         return tuple(dict.fromkeys(out))
 
-    def resisting_force(self, name: str, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+    def resisting_force(self, name: str, arrays: Mapping[str, np.ndarray], state: dict | None = None) -> np.ndarray:
         """``sum_j p_j phi_j``: what the drive spends on the machine itself [N] (no process force).
 
         Parameters
@@ -385,18 +446,20 @@ class ControllerModel:
             Axis letter.
         arrays : mapping of str to ndarray
             Logged channels in SI (current [A], position [m], velocity [m/s], acceleration [m/s^2]).
+        state : dict, optional
+            Presliding state carried between stream chunks (updated in place); None: a fresh start.
         """
         ax = self.axis(name)
         v = np.asarray(arrays[f"{name}_velocity"], dtype=float)
-        direction = friction_direction(v, np.asarray(arrays[f"{name}_acceleration"], dtype=float),
-                                       self.window_s, ax.v_eps)
+        direction = axis_direction(name, arrays, window_s=self.window_s, v_eps=ax.v_eps, x_pre=ax.x_pre,
+                                   hold_decay=ax.hold_decay(self.rate_hz), state=state)
         total = np.zeros_like(v)
         for t in ax.terms:
             total += t.value * feature_column(t.name, name, arrays, window_s=self.window_s, v_eps=ax.v_eps,
                                               v_s=ax.v_s, period=ax.period, direction=direction)
         return total
 
-    def process_force(self, name: str, arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+    def process_force(self, name: str, arrays: Mapping[str, np.ndarray], state: dict | None = None) -> np.ndarray:
         """Process force on the workpiece along +axis [N]: ``K_m I - sum_j p_j phi_j``.
 
         Parameters
@@ -406,12 +469,15 @@ class ControllerModel:
         arrays : mapping of str to ndarray
             Logged channels (:meth:`input_channels`) in SI: current [A], position [m], velocity [m/s],
             acceleration [m/s^2].
+        state : dict, optional
+            Presliding state carried between stream chunks (updated in place); None: a fresh start.
         """
-        missing = [c for c in features_needed(name, [t.name for t in self.axis(name).terms]) if c not in arrays]
+        ax = self.axis(name)
+        missing = [c for c in features_needed(name, [t.name for t in ax.terms], ax.x_pre) if c not in arrays]
         if missing:
             raise MissingChannelError(f"axis {name}: the controller model needs channel(s) {', '.join(missing)}")
         current = np.asarray(arrays[f"{name}_current"], dtype=float)
-        return self.axis(name).K_m * current - self.resisting_force(name, arrays)
+        return ax.K_m * current - self.resisting_force(name, arrays, state)
 
     def to_dict(self) -> dict:
         """Plain types (SI): ``window_s``, ``delay_s``, ``rate_hz`` and one table per axis."""

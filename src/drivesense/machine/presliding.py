@@ -26,13 +26,14 @@ __all__ = ["presliding_direction", "carried_presliding_direction"]
 
 
 @njit(cache=True)
-def _dahl_direction(position, x_pre, s_prev, d0):
+def _dahl_direction(position, x_pre, s_prev, d0, decay):
     out = np.empty(position.size)
     d = d0
     prev = s_prev
     for k in range(position.size):
         ds = position[k] - prev
         prev = position[k]
+        d *= decay
         if ds > 0.0:
             d = 1.0 + (d - 1.0) * math.exp(-ds / x_pre)
         elif ds < 0.0:
@@ -42,7 +43,7 @@ def _dahl_direction(position, x_pre, s_prev, d0):
 
 
 def presliding_direction(position, x_pre: float, *, previous_position: float | None = None,
-                         direction: float = 0.0) -> np.ndarray:
+                         direction: float = 0.0, decay: float = 1.0) -> np.ndarray:
     """Presliding friction state ``d`` in [-1, 1] along a position trace (Dahl model, rate-independent).
 
     Over each step ``ds`` between samples ``d`` relaxes exactly towards
@@ -61,6 +62,10 @@ def presliding_direction(position, x_pre: float, *, previous_position: float | N
         first sample (no step into it).
     direction : float
         State before the first sample [-] (0: unknown, no friction held).
+    decay : float
+        Factor [-] in (0, 1] on the state at every sample before its step:
+        friction held at standstill relaxing under the servo's dither
+        (``exp(-dt / tau)`` for a relaxation time ``tau``; 1: none, the pure Dahl model).
 
     Returns
     -------
@@ -72,13 +77,15 @@ def presliding_direction(position, x_pre: float, *, previous_position: float | N
         raise ConfigError(f"presliding distance 'x_pre' must be > 0 [m], got {x_pre!r}")
     if not -1.0 <= direction <= 1.0:
         raise ConfigError(f"presliding state 'direction' must lie in [-1, 1], got {direction!r}")
+    if not 0.0 < decay <= 1.0:
+        raise ConfigError(f"presliding 'decay' must lie in (0, 1], got {decay!r}")
     if s.size == 0:
         return s.copy()
     prev = float(s[0]) if previous_position is None else float(previous_position)
-    return _dahl_direction(s, float(x_pre), prev, float(direction))
+    return _dahl_direction(s, float(x_pre), prev, float(direction), float(decay))
 
 
-def carried_presliding_direction(position, x_pre: float, state: dict | None, key) -> np.ndarray:
+def carried_presliding_direction(position, x_pre: float, state: dict | None, key, decay: float = 1.0) -> np.ndarray:
     """:func:`presliding_direction` continued across stream chunks.
 
     Parameters
@@ -92,6 +99,8 @@ def carried_presliding_direction(position, x_pre: float, state: dict | None, key
         updated in place; None: a fresh start, nothing kept.
     key : hashable
         This axis's entry in ``state``.
+    decay : float
+        Per-sample relaxation factor of the state [-] (see :func:`presliding_direction`).
 
     Returns
     -------
@@ -99,7 +108,7 @@ def carried_presliding_direction(position, x_pre: float, state: dict | None, key
         ``d`` per sample.
     """
     prev, d0 = state.get(key, (None, 0.0)) if state is not None else (None, 0.0)
-    d = presliding_direction(position, x_pre, previous_position=prev, direction=d0)
+    d = presliding_direction(position, x_pre, previous_position=prev, direction=d0, decay=decay)
     if state is not None and d.size:
         state[key] = (float(np.ravel(position)[-1]), float(d[-1]))
     return d
