@@ -37,6 +37,7 @@ exactly the model.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -405,6 +406,14 @@ class LinearAxisPhysics:
         Second pole of the real current loop [rad/s] (0: none).
     run_spread : float
         Run-to-run variation of friction and restoring levels, 1 sigma [-].
+    weight : float
+        Constant gravity force on the axis along +axis [N], net of any
+        counterbalance (negative for a vertical axis whose + direction is
+        up); the motor holds ``-weight`` at rest.  0 (default): horizontal.
+    reflected_mass : float
+        Rotating inertia reflected to the axis [kg] (a ball screw's rotor and
+        screw, ``J (2 pi / lead)^2``): moved by this axis's motor only, never
+        carried by another axis.  0 (default): a linear motor.
     """
 
     model: LinearMotorAxis
@@ -418,6 +427,8 @@ class LinearAxisPhysics:
     current_bandwidth: float = 2.0 * math.pi * 600.0
     current_extra_pole: float = 2.0e4
     run_spread: float = 0.02
+    weight: float = 0.0
+    reflected_mass: float = 0.0
 
     def varied(self, rng: np.random.Generator) -> "LinearAxisPhysics":
         """A copy with run-to-run variation of the friction and restoring levels.
@@ -442,7 +453,7 @@ class LinearMachinePhysics:
     Parameters
     ----------
     x, y, z : LinearAxisPhysics
-        Per-axis physics (X carries Z; Y carries X and Z).
+        Per-axis physics.
     yaw_coupling : float
         Share of X's inertial force that reaches the Y drive through the
         slide's yaw [-].
@@ -454,6 +465,11 @@ class LinearMachinePhysics:
         model's cogging table, no droop, lag, coupling or variation).  Set
         by :meth:`ideal`; the simulator's ideal switch is
         :meth:`drivesense.sim.machining.ProcessSettings.as_ideal`.
+    carries : mapping of str to tuple of str
+        Kinematics: the axes each axis carries (all of them, not only the
+        next one), e.g. ``{"x": (), "y": ("x",), "z": ()}`` for a table X on
+        a saddle Y and a Z head on a fixed column.  Default: Eq. 2 of the
+        linear-motor machine (X carries Z; Y carries X and Z).
     """
 
     x: LinearAxisPhysics
@@ -462,6 +478,34 @@ class LinearMachinePhysics:
     yaw_coupling: float = 0.01
     weight_shift: float = 2.0
     exact: bool = False
+    carries: Mapping[str, tuple[str, ...]] = field(default_factory=lambda: {"x": ("z",), "y": ("x", "z"), "z": ()})
+
+    def __post_init__(self) -> None:
+        c = self.carries
+        if not isinstance(c, Mapping) or set(c) != set(AXES) or any(
+                isinstance(c[a], str) or not all(b in AXES and b != a for b in c[a]) for a in AXES):
+            raise ConfigError(f"'carries' must map each of x, y, z to the other axes it carries, got {c!r}")
+        object.__setattr__(self, "carries", {a: tuple(c[a]) for a in AXES})
+
+    def moved_masses(self) -> dict[str, float]:
+        """Mass each motor moves [kg]: its own, those of the axes it carries, and its reflected inertia.
+
+        With the default :attr:`carries` and no reflected inertia this equals
+        :meth:`ThreeAxisModel.stacked_masses` (Eq. 2).
+
+        Returns
+        -------
+        dict of str to float
+            Axis letter -> moved mass [kg].
+        """
+        out = {}
+        for a in AXES:
+            total = 0.0
+            for b in AXES:
+                if b == a or b in self.carries[a]:
+                    total += self.axis(b).model.m
+            out[a] = total + self.axis(a).reflected_mass
+        return out
 
     def axis(self, name: str) -> LinearAxisPhysics:
         """Physics of axis ``name``.
@@ -474,7 +518,11 @@ class LinearMachinePhysics:
         return getattr(self, axis_name(name))
 
     def model(self) -> ThreeAxisModel:
-        """The nominal estimator model (the true values identification should find)."""
+        """The nominal estimator model (the true values identification should find).
+
+        Its masses stack as in Eq. 2; the masses the simulated motors move
+        (other kinematics, reflected inertia) are :meth:`moved_masses`.
+        """
         return ThreeAxisModel(self.x.model, self.y.model, self.z.model)
 
     def ideal(self) -> "LinearMachinePhysics":

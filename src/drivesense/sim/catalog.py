@@ -1,13 +1,17 @@
 """Every scenario ``drivesense simulate`` runs, by name, with a one-line description.
 
-Two machines:
+Three machines:
 
 * the ball-screw stage of the first paper (:mod:`drivesense.sim.scenarios`,
   10 kHz): the ten end-milling cuts, the idling runs of the feed-direction
   ones and the FRF excitations;
 * the 3-axis linear-motor machine of the third paper
   (:mod:`drivesense.sim.machining`, 250 Hz NC traces): the milling processes
-  at one set of cutting parameters and the identification air moves.
+  at one set of cutting parameters and the identification air moves;
+* the ball-screw vertical machining centre (:mod:`drivesense.sim.vmc`, 50 Hz
+  controller traces): the part programs ``vmc_<program>`` and their dry runs
+  ``vmc_air_<program>`` (machine seed 0, the programs' default cutting
+  parameters unless given).
 
 :func:`simulate_scenario` returns a list of recordings: one for every
 scenario but ``air_moves`` (nine: three per axis).
@@ -20,10 +24,15 @@ from dataclasses import dataclass
 from drivesense.errors import ConfigError
 from drivesense.recording import Recording
 
-__all__ = ["AIR_MOVES", "ProcessParameters", "describe_scenarios", "is_process", "simulate_scenario"]
+__all__ = ["AIR_MOVES", "VMC_PREFIX", "VMC_AIR_PREFIX", "ProcessParameters", "describe_scenarios", "is_process",
+           "is_vmc_program", "simulate_scenario"]
 
 #: Name of the linear machine's identification air moves (several recordings).
 AIR_MOVES = "air_moves"
+
+#: Prefix of the machining centre's part programs (``vmc_<program>``) and of their dry runs.
+VMC_PREFIX = "vmc_"
+VMC_AIR_PREFIX = "vmc_air_"
 
 _PROCESS_KINDS = {"groove": "groove (slot) along {d}", "side": "side milling (up) along {d}"}
 
@@ -76,7 +85,8 @@ def describe_scenarios() -> dict[str, str]:
     """Every scenario name with a one-line description, ball-screw ones first.
 
     The ball-screw stage records at 10 kHz, the linear machine's NC trace at
-    250 Hz; every cut and process carries its true force.  The processes'
+    250 Hz, the machining centre's controller trace at 50 Hz; every cut and
+    process carries its true force (dry runs none).  The processes'
     cutting parameters are :class:`ProcessParameters`.
 
     Returns
@@ -86,6 +96,7 @@ def describe_scenarios() -> dict[str, str]:
     """
     from drivesense.sim.excitation import EXCITATIONS
     from drivesense.sim.machining import process_names
+    from drivesense.sim.nc_programs import describe_nc_program, nc_programs
     from drivesense.sim.scenarios import paper_conditions
 
     out: dict[str, str] = {}
@@ -101,6 +112,11 @@ def describe_scenarios() -> dict[str, str]:
     for name in process_names():
         out[name] = _process_line(name)
     out[AIR_MOVES] = "linear machine: 9 air moves (3 per axis), a folder of .nc files, for identify linear"
+    for name in nc_programs():
+        out[f"{VMC_PREFIX}{name}"] = f"machining centre (ball screws, 50 Hz controller trace + dynamometer force): " \
+                                     f"{describe_nc_program(name)}"
+    for name in nc_programs():
+        out[f"{VMC_AIR_PREFIX}{name}"] = f"machining centre: dry run of {name} (same moves, spindle on, no force)"
     return out
 
 
@@ -121,6 +137,24 @@ def is_process(name: str) -> bool:
     return name in process_names()
 
 
+def is_vmc_program(name: str) -> bool:
+    """Whether `name` is a machining-centre part program or its dry run (which take :class:`ProcessParameters`).
+
+    Parameters
+    ----------
+    name : str
+        Scenario name.
+
+    Returns
+    -------
+    bool
+    """
+    from drivesense.sim.nc_programs import nc_programs
+
+    program = name[len(VMC_AIR_PREFIX):] if name.startswith(VMC_AIR_PREFIX) else name[len(VMC_PREFIX):]
+    return name.startswith(VMC_PREFIX) and program in nc_programs()
+
+
 def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
                       params: ProcessParameters | None = None) -> list[Recording]:
     """Simulate a scenario of :func:`describe_scenarios` by name.
@@ -135,7 +169,9 @@ def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
         Data from exactly the estimators' model (each simulator's ``as_ideal``).
     params : ProcessParameters, optional
         Cutting parameters of a linear-machine process (default:
-        :class:`ProcessParameters`); refused for the other scenarios.
+        :class:`ProcessParameters`) or of a machining-centre program (default:
+        the programs' own, :data:`drivesense.sim.nc_programs.DEFAULT_CUT`);
+        refused for the other scenarios.
 
     Returns
     -------
@@ -154,8 +190,16 @@ def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
     known = describe_scenarios()
     if name not in known:
         raise ConfigError(f"unknown scenario {name!r}; known: {', '.join(known)}")
-    if params is not None and not is_process(name):
-        raise ConfigError(f"cutting parameters apply to the linear machine's processes, not to {name!r}")
+    if params is not None and not (is_process(name) or is_vmc_program(name)):
+        raise ConfigError(f"cutting parameters apply to the linear machine's processes and the machining centre's "
+                          f"programs, not to {name!r}")
+    if is_vmc_program(name):
+        from drivesense.sim.vmc import simulate_nc_program
+
+        air = name.startswith(VMC_AIR_PREFIX)
+        program = name[len(VMC_AIR_PREFIX if air else VMC_PREFIX):]
+        cut = {} if params is None else {"a_p": params.a_p, "a_e": params.a_e, "v_f": params.v_f, "n": params.n}
+        return [simulate_nc_program(program, rate=50.0, air=air, seed=seed, ideal=ideal, **cut)]
     if is_process(name):
         p = params or ProcessParameters()
         return [simulate_process(name, p.a_p, p.a_e, p.v_f, p.n, seed=seed, ideal=ideal)]

@@ -5,7 +5,9 @@ on the linear scale with velocity feedforward, a PI velocity loop on the
 scale's differentiated position with acceleration feedforward, and a current
 reference to the current loop (first order, plus a second pole in the full
 physics).  The plant (motor force with droop, cogging, restoring force,
-LuGre friction, process force, yaw coupling; masses stacked as in Eq. 2) is
+LuGre friction, process force, yaw coupling, a constant weight; each motor
+moving the masses of :meth:`LinearMachinePhysics.moved_masses
+<drivesense.machine.linear_motor.LinearMachinePhysics.moved_masses>`) is
 integrated with ``substeps`` semi-implicit Euler steps per control period.
 
 The controller's own values -- scale position, velocity and acceleration from
@@ -66,12 +68,12 @@ class LinearServoConfig:
     position_gain : float
         Position-loop gain [1/s].
     velocity_bandwidth_hz : float
-        Velocity-loop bandwidth [Hz]; the P gain is the nominal stacked mass
+        Velocity-loop bandwidth [Hz]; the P gain is the nominal moved mass
         times ``2 pi`` this [N/(m/s)].
     velocity_integral_time : float
         Integral time of the velocity PI [s].
     feedforward_mass_ratio : float
-        Acceleration feedforward with this share of the nominal stacked mass [-].
+        Acceleration feedforward with this share of the nominal moved mass [-].
     current_noise : float
         White disturbance on the real motor current, 1 sigma [A].
     current_sensor_noise : float
@@ -191,9 +193,11 @@ class AxisParams(NamedTuple):
     pole_pitch : float
         Pole pitch [m].
     mass : float
-        Stacked mass the motor moves [kg].
+        Mass the motor moves [kg].
     velocity_gain : float
         Velocity-loop P gain [N/(m/s)].
+    weight : float
+        Constant gravity force along +axis [N] (net of a counterbalance).
     lugre : bool
         LuGre friction (full physics); False: the model's static Stribeck curve.
     friction : LuGreParams
@@ -226,6 +230,7 @@ class AxisParams(NamedTuple):
     pole_pitch: float
     mass: float
     velocity_gain: float
+    weight: float
     lugre: bool
     friction: LuGreParams
     delta: float
@@ -255,7 +260,7 @@ class MachineParams(NamedTuple):
     integral_time : float
         Velocity PI integral time [s].
     feedforward_mass_ratio : float
-        Share of the stacked mass in the acceleration feedforward [-].
+        Share of the moved mass in the acceleration feedforward [-].
     current_noise, current_sensor_noise : float
         Current disturbance and measurement noise, 1 sigma [A].
     current_resolution : float
@@ -302,7 +307,7 @@ def axis_params(axis: LinearAxisPhysics, exact: bool, mass: float, velocity_gain
         The estimators' own model: no drift, ripple, load dependence, droop,
         extra pole or cogging variation (and the model's friction and cogging table).
     mass : float
-        Stacked mass the motor moves [kg].
+        Mass the motor moves [kg].
     velocity_gain : float
         Velocity-loop P gain [N/(m/s)].
 
@@ -323,7 +328,7 @@ def axis_params(axis: LinearAxisPhysics, exact: bool, mass: float, velocity_gain
     harm = np.array(axis.cogging_harmonics, dtype=np.float64).reshape(-1, 2)
     return AxisParams(
         K_m=md.K_m, k=md.k, s_r=md.s_r, pole_pitch=md.pole_pitch, mass=float(mass),
-        velocity_gain=float(velocity_gain), lugre=full, friction=lugre_params, delta=md.delta,
+        velocity_gain=float(velocity_gain), weight=float(axis.weight), lugre=full, friction=lugre_params, delta=md.delta,
         km_droop=0.0 if exact else float(axis.km_droop), rated_current=float(axis.rated_current),
         max_current=float(axis.max_current), current_bandwidth=float(axis.current_bandwidth),
         current_extra_pole=0.0 if exact else float(axis.current_extra_pole),
@@ -350,7 +355,8 @@ def run_linear_machine(physics: LinearMachinePhysics, config: LinearServoConfig,
         Process force on the workpiece [N] (the axes, which carry the tool,
         feel minus it), at the control instants.
     normal_load : array_like, shape (3, n)
-        Extra normal load on each axis's guides [N] (raises its friction).
+        Extra load on each axis's guides or screw nut [N] (raises its
+        friction by the LuGre ``load_coefficient``).
     seed : int
         Seed of the noise generators.
 
@@ -363,7 +369,7 @@ def run_linear_machine(physics: LinearMachinePhysics, config: LinearServoConfig,
     if any(a.ndim != 2 or a.shape[0] != 3 or a.shape != arrays[0].shape for a in arrays):
         raise ConfigError("run_linear_machine: references, forces and loads must all have shape (3, n)")
     model = physics.model()
-    masses = model.stacked_masses()
+    masses = physics.moved_masses()
     axes = tuple(axis_params(physics.axis(a), physics.exact, masses[a],
                              masses[a] * 2.0 * math.pi * config.velocity_bandwidth_hz) for a in AXES)
     x_travel = physics.x.travel
@@ -439,9 +445,9 @@ def _make_machine_loop(physics_source: str):
         fc = np.zeros(3)
         for a in range(3):
             x[a] = x_ref[a, 0]
-            # start at rest in force balance with the restoring force and cogging (integrator preloaded)
+            # start at rest in force balance with the restoring force, cogging and weight (integrator preloaded)
             p = axes[a]
-            f0 = p.k * (x[a] - p.s_r) + _cogging(p, exact, x[a])
+            f0 = p.k * (x[a] - p.s_r) + _cogging(p, exact, x[a]) - p.weight
             integ[a] = f0
             i1[a] = f0 / p.K_m
             i2[a] = i1[a]
@@ -503,7 +509,7 @@ def _make_machine_loop(physics_source: str):
                         zb[a], f_fr = lugre_step(p.friction, zb[a], v[a], fc[a], dt)
                     else:
                         f_fr = _model_friction(p, v[a])
-                    f_net = km * i_act - f_cog - f_rest - f_fr - fw
+                    f_net = km * i_act - f_cog - f_rest - f_fr - fw + p.weight
                     if a == 1 and not exact:
                         f_net += yaw * axes[0].mass * acc[0]
                     acc[a] = f_net / p.mass

@@ -35,7 +35,9 @@ from drivesense.errors import ConfigError
 from drivesense.machine.linear_motor import AXES, LinearMachinePhysics, linear_machine_physics
 from drivesense.machine.milling import CuttingCoefficients, EndMill, MillingCut, milling_forces
 from drivesense.recording import Recording
+from drivesense.sim.cutting import plunge_load, straight_cut_forces, workpiece_force
 from drivesense.sim.linear_machine import LinearServoConfig, nc_trace, run_linear_machine
+from drivesense.sim.toolpath import ToolpathProgram
 
 __all__ = ["ProcessSettings", "process_names", "table1_process_grid", "simulate_process", "simulate_air_moves",
            "c45_coefficients"]
@@ -149,111 +151,11 @@ def table1_process_grid() -> dict[str, list[float]]:
 
 
 # ------------------------------------------------------------------ paths
-def _profile(t: np.ndarray, t0: float, length: float, speed: float, ramp: float):
-    """Arc length, speed and acceleration of a rest-to-rest move starting at ``t0`` [s]."""
-    ramp = min(ramp, length / speed)
-    t1, t2 = t0 + ramp, t0 + length / speed
-    t3 = t2 + ramp
-    s = np.zeros_like(t)
-    v = np.zeros_like(t)
-    a = np.zeros_like(t)
-    u = np.clip((t - t0) / ramp, 0.0, 1.0)
-    up = (t >= t0) & (t < t1)
-    s[up] = speed * (u[up] * ramp / 2 - ramp / (2 * math.pi) * np.sin(math.pi * u[up]))
-    v[up] = speed * (0.5 - 0.5 * np.cos(math.pi * u[up]))
-    a[up] = speed * math.pi / (2 * ramp) * np.sin(math.pi * u[up])
-    cr = (t >= t1) & (t < t2)
-    s[cr] = speed * ramp / 2 + speed * (t[cr] - t1)
-    v[cr] = speed
-    w = np.clip((t - t2) / ramp, 0.0, 1.0)
-    dn = (t >= t2) & (t < t3)
-    s[dn] = length - speed * ramp / 2 + speed * (w[dn] * ramp / 2 + ramp / (2 * math.pi) * np.sin(math.pi * w[dn]))
-    v[dn] = speed * (0.5 + 0.5 * np.cos(math.pi * w[dn]))
-    a[dn] = -speed * math.pi / (2 * ramp) * np.sin(math.pi * w[dn])
-    s[t >= t3] = length
-    return s, v, a, t3
-
-
-class _Program:
-    """Reference trajectory of the three axes built move by move (each rest to rest)."""
-
-    def __init__(self, start, fs: float) -> None:
-        self.fs = fs
-        self.start = np.asarray(start, dtype=float)
-        self.moves: list[tuple] = []
-        self.t_end = 0.0
-
-    def dwell(self, duration: float) -> None:
-        self.t_end += duration
-
-    def line(self, delta, speed: float, ramp: float, tag: str = "") -> tuple[float, float, float]:
-        """Straight move by ``delta`` [m]; returns (start, cruise end, end) times [s]."""
-        delta = np.asarray(delta, dtype=float)
-        length = float(np.linalg.norm(delta))
-        t0 = self.t_end
-        self.moves.append(("line", t0, length, speed, ramp, delta / length, tag))
-        self.t_end = t0 + length / speed + min(ramp, length / speed)
-        return t0, t0 + length / speed, self.t_end
-
-    def arc(self, centre_offset, angle: float, speed: float, ramp: float, tag: str = "") -> tuple[float, float, float]:
-        """Counter-clockwise arc in xy about ``current + centre_offset`` through ``angle`` [rad]."""
-        r = float(np.hypot(*centre_offset[:2]))
-        t0 = self.t_end
-        self.moves.append(("arc", t0, r * angle, speed, ramp, np.asarray(centre_offset, float), tag))
-        self.t_end = t0 + r * angle / speed + min(ramp, r * angle / speed)
-        return t0, t0 + r * angle / speed, self.t_end
-
-    def build(self, tail: float):
-        n = int(math.ceil((self.t_end + tail) * self.fs))
-        t = np.arange(n) / self.fs
-        pos = np.repeat(self.start[:, None], n, axis=1)
-        vel = np.zeros((3, n))
-        acc = np.zeros((3, n))
-        here = self.start.copy()
-        for kind, t0, length, speed, ramp, geo, _tag in self.moves:
-            s, v, a, _ = _profile(t, t0, length, speed, ramp)
-            after = t >= t0
-            if kind == "line":
-                pos[:, after] += geo[:, None] * s[after]
-                vel += geo[:, None] * v
-                acc += geo[:, None] * a
-                here = here + geo * length
-            else:
-                r = float(np.hypot(*geo[:2]))
-                centre = here + geo
-                th0 = math.atan2(-geo[1], -geo[0])
-                th = th0 + s / r
-                pos[0, after] += (centre[0] + r * np.cos(th[after])) - here[0]
-                pos[1, after] += (centre[1] + r * np.sin(th[after])) - here[1]
-                vel[0] += -np.sin(th) * v
-                vel[1] += np.cos(th) * v
-                acc[0] += -np.sin(th) * a - np.cos(th) * v ** 2 / r
-                acc[1] += np.cos(th) * a - np.sin(th) * v ** 2 / r
-                here = np.array([centre[0] + r * math.cos(th0 + length / r),
-                                 centre[1] + r * math.sin(th0 + length / r), here[2]])
-        return t, pos, vel, acc
-
-
 def _centre(physics: LinearMachinePhysics) -> np.ndarray:
     return np.array([0.5 * sum(physics.axis(a).travel) for a in AXES])
 
 
 # ------------------------------------------------------------------ forces
-def _tool_forces(settings: ProcessSettings, cut: MillingCut, angle, speed, progress, length):
-    """Tool-frame forces of a straight engagement of ``length`` [m] (entry and exit edges)."""
-    tool = settings.tool
-    omega = np.gradient(angle) * settings.servo.fs
-    c = 2 * math.pi * np.abs(speed) / (tool.flutes * np.maximum(omega, 1e-9))
-    a = milling_forces(tool, settings.coefficients, cut, angle, c, feed_progress=progress)
-    b = milling_forces(tool, settings.coefficients, cut, angle, c, feed_progress=progress - length)
-    return a.feed - b.feed, a.normal - b.normal, a.axial - b.axial, a.torque - b.torque
-
-
-def _rotate(feed, normal, axial, dx, dy):
-    """Tool-frame force on the tool -> force on the workpiece in machine axes (3, n)."""
-    return -np.vstack([feed * dx - normal * dy, feed * dy + normal * dx, axial])
-
-
 def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSettings, angle_fn, rng):
     """Reference trajectory, workpiece force (3, n), spindle torque and scoring window."""
     tool = settings.tool
@@ -268,7 +170,7 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         approach = v_f * (settings.ramp_time / 2 + settings.air_time) + d_half
         total = approach + settings.cut_length + d_half + v_f * 0.4
         start = centre - np.array([dx, dy, 0.0]) * total / 2
-        prog = _Program(start, fs)
+        prog = ToolpathProgram(start, fs)
         prog.dwell(0.3)
         t0, t_dec, _ = prog.line(np.array([dx, dy, 0.0]) * total, v_f, settings.ramp_time)
         t, pos, vel, acc = prog.build(0.3)
@@ -277,15 +179,15 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         ae = tool.diameter if kind == "groove" else a_e
         cut = MillingCut(ae, a_p, "up", axial_slices=8)
         angle = angle_fn(t)
-        fe, fn, fa, tq = _tool_forces(settings, cut, angle, speed, along - (approach - d_half) - d_half,
-                                      settings.cut_length)
-        force = _rotate(fe, fn, fa, dx, dy)
+        fe, fn, fa, tq = straight_cut_forces(tool, settings.coefficients, cut, angle, speed,
+                                             along - (approach - d_half) - d_half, settings.cut_length, fs)
+        force = workpiece_force(fe, fn, fa, dx, dy)
         window = (t0 + settings.ramp_time + settings.settle, t_dec)
         return t, pos, vel, acc, force, tq, window
     if name == "pocket_ccw":
         r = settings.pocket_radius
         start = centre + np.array([r, 0.0, 0.003])
-        prog = _Program(start, fs)
+        prog = ToolpathProgram(start, fs)
         prog.dwell(0.3)
         plunge_v = v_f / 3
         t_pl, _, t_pl_end = prog.line(np.array([0.0, 0.0, -(0.003 + a_p)]), plunge_v, settings.ramp_time)
@@ -300,9 +202,7 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         omega = np.gradient(angle) * fs
         c_z = 2 * math.pi * np.clip(-vel[2], 0.0, None) / (tool.flutes * np.maximum(omega, 1e-9))
         engaged = np.clip(depth / 0.3e-3, 0.0, 1.0) * (c_z > 0)
-        k = settings.coefficients
-        thrust = engaged * 0.5 * tool.flutes * d_half * (1.5 * k.Ktc * c_z + k.Kte)
-        torque_pl = engaged * 0.25 * tool.flutes * d_half ** 2 * (k.Ktc * c_z + k.Kte)
+        thrust, torque_pl = plunge_load(tool, settings.coefficients, c_z, engaged)
         # milling along the circle (tangent d = (-sin th, cos th)); engagement from the end of the plunge
         in_arc = t >= t_arc
         th = np.arctan2(pos[1] - centre[1], pos[0] - centre[0])
@@ -312,7 +212,7 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         c = 2 * math.pi * speed / (tool.flutes * omega_s)
         mf = milling_forces(tool, settings.coefficients, MillingCut(a_e, a_p, "down", axial_slices=8), angle, c)
         on = in_arc & (t < t_arc_dec + settings.ramp_time)
-        force = _rotate(mf.feed * on, mf.normal * on, mf.axial * on, dx, dy)
+        force = workpiece_force(mf.feed * on, mf.normal * on, mf.axial * on, dx, dy)
         force[2] -= thrust
         window = (t_pl + settings.settle, t_arc_dec + settings.ramp_time)
         return t, pos, vel, acc, force, mf.torque * on + torque_pl, window
@@ -322,17 +222,18 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         approach = v_f * (settings.ramp_time / 2 + settings.air_time)
         total = approach + settings.cut_length + d_half + v_f * 0.4
         start = centre - dvec * total / 2
-        prog = _Program(start, fs)
+        prog = ToolpathProgram(start, fs)
         prog.dwell(0.3)
         t0, t_dec, _ = prog.line(dvec * total, v_f, settings.ramp_time)
         t, pos, vel, acc = prog.build(0.3)
         along = (pos[1] - start[1]) * dvec[1] + (pos[2] - start[2]) * dvec[2]
         speed = vel[1] * dvec[1] + vel[2] * dvec[2]
         angle = angle_fn(t)
-        fe, fn, fa, tq = _tool_forces(settings, MillingCut(a_e, a_p, "down", axial_slices=8), angle, speed,
-                                      along - approach + d_half, settings.cut_length)
+        cut = MillingCut(a_e, a_p, "down", axial_slices=8)
+        fe, fn, fa, tq = straight_cut_forces(tool, settings.coefficients, cut, angle, speed, along - approach + d_half,
+                                             settings.cut_length, fs)
         depth = np.clip((along - approach) / settings.cut_length, 0.0, 1.0)
-        force = _rotate(fe * depth, fn * depth, fa * depth, 0.0, -1.0)
+        force = workpiece_force(fe * depth, fn * depth, fa * depth, 0.0, -1.0)
         window = (t0 + settings.ramp_time + settings.settle, t_dec)
         return t, pos, vel, acc, force, tq * depth, window
     raise ConfigError(f"unknown process {name!r}; known: {', '.join(process_names())}")
@@ -500,14 +401,14 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
         lo, hi = lo + 0.005, hi - 0.005
         unit = np.eye(3)[i]
         programs = []
-        prog = _Program(np.where(unit > 0, lo, _centre(settings.physics)), fs)
+        prog = ToolpathProgram(np.where(unit > 0, lo, _centre(settings.physics)), fs)
         for v in travel_speeds:
             prog.dwell(0.3)
             prog.line(unit * (hi - lo), v, 0.1)
             prog.dwell(0.3)
             prog.line(-unit * (hi - lo), v, 0.1)
         programs.append(("travel", prog))
-        prog = _Program(np.where(unit > 0, lo, _centre(settings.physics)), fs)
+        prog = ToolpathProgram(np.where(unit > 0, lo, _centre(settings.physics)), fs)
         here = lo
         for v in speeds:      # every segment centred on the travel centre (same friction ripple for all speeds)
             length = min(v * segment_time, hi - lo)
@@ -521,7 +422,7 @@ def simulate_air_moves(axes=AXES, *, seed: int = 100, ideal: bool = False, setti
             prog.line(-unit * length, v, 0.1)
             here = target
         programs.append(("speeds", prog))
-        prog = _Program(np.where(unit > 0, lo, _centre(settings.physics)), fs)
+        prog = ToolpathProgram(np.where(unit > 0, lo, _centre(settings.physics)), fs)
         span = min(0.2, hi - lo)
         for ramp in accel_ramps:
             prog.dwell(0.2)
