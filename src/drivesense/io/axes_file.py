@@ -17,6 +17,8 @@ controller-rate model of any machine (``identify nc``, see
     v_eps = 2e-05         # m/s, standstill noise of the logged velocity
     v_s = 0.005           # m/s, Stribeck velocity (0: none)
     period = 0.01         # m, period of the ripple terms (0: none)
+    x_pre = 5e-06         # m, presliding distance (0: window-mean sign of v)
+    hold_time = 3.0       # s, relaxation of the friction held at standstill (0: none)
 
     [x.terms]             # F = K_m I - sum(value * feature); name = [value, 95 % half-width]
     offset = [12.0, 3.0]  # N
@@ -146,7 +148,9 @@ def _controller_lines(model: ControllerModel) -> list[str]:
              f"delay_s = {model.delay_s!r}  # s, delay of the drive channels behind the process force (latency)"]
     notes = {"K_m": "N/A, force constant as logged (sign included)", "K_m_ci95": "N/A, 95 % half-width",
              "v_eps": "m/s, standstill noise of the logged velocity", "v_s": "m/s, Stribeck velocity (0: none)",
-             "period": "m, period of the ripple terms (0: none)"}
+             "period": "m, period of the ripple terms (0: none)",
+             "x_pre": "m, presliding distance of the friction direction's Dahl state (0: window-mean sign)",
+             "hold_time": "s, relaxation time of the friction held at standstill (0: none)"}
     for name, ax in model.axes.items():
         d = ax.to_dict()
         lines += ["", f"[{name}]"] + [f"{k} = {float(d[k])!r}  # {note}" for k, note in notes.items()]

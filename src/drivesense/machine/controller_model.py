@@ -451,6 +451,8 @@ class ControllerModel:
         """
         ax = self.axis(name)
         v = np.asarray(arrays[f"{name}_velocity"], dtype=float)
+        if ax.x_pre > 0 and v.size and (state is None or name not in state) and f"{name}_current" in arrays:
+            state = self._primed(name, arrays, {} if state is None else state)
         direction = axis_direction(name, arrays, window_s=self.window_s, v_eps=ax.v_eps, x_pre=ax.x_pre,
                                    hold_decay=ax.hold_decay(self.rate_hz), state=state)
         total = np.zeros_like(v)
@@ -458,6 +460,27 @@ class ControllerModel:
             total += t.value * feature_column(t.name, name, arrays, window_s=self.window_s, v_eps=ax.v_eps,
                                               v_s=ax.v_s, period=ax.period, direction=direction)
         return total
+
+    def _primed(self, name: str, arrays: Mapping[str, np.ndarray], state: dict) -> dict:
+        """The presliding state before the first sample, from that sample: the friction its current holds.
+
+        A trace (or a stream) starts with the axis holding an unknown friction
+        from its last move; starting the state at 0 would read that friction as
+        process force until the axis travels a few ``x_pre``.  Assuming no process
+        force on the first sample, ``d0 = clip((K_m I - other terms) / friction level, -1, 1)``.
+        """
+        ax = self.axis(name)
+        first = {k: np.asarray(v)[:1] for k, v in arrays.items()}
+        held = ax.K_m * float(first[f"{name}_current"][0])
+        friction_terms = ("coulomb_pos", "coulomb_neg", "stribeck")
+        for t in ax.terms:
+            if t.name not in friction_terms:
+                held -= t.value * float(feature_column(t.name, name, first, window_s=self.window_s, v_eps=ax.v_eps,
+                                                       v_s=ax.v_s, period=ax.period)[0])
+        level = ax.value("coulomb_pos" if held >= 0 else "coulomb_neg") + ax.value("stribeck")
+        d0 = float(np.clip(held / level, -1.0, 1.0)) if level > 0 else 0.0
+        state[name] = (float(first[f"{name}_position"][0]), d0)
+        return state
 
     def process_force(self, name: str, arrays: Mapping[str, np.ndarray], state: dict | None = None) -> np.ndarray:
         """Process force on the workpiece along +axis [N]: ``K_m I - sum_j p_j phi_j``.
