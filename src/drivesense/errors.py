@@ -13,6 +13,7 @@ __all__ = [
     "InvalidSignalError",
     "TimebaseError",
     "SignalTooShortError",
+    "ImplausibleSampleError",
     "MissingChannelError",
     "UnitError",
     "ConfigError",
@@ -36,6 +37,17 @@ class TimebaseError(InvalidSignalError):
 
 class SignalTooShortError(InvalidSignalError):
     """A trace is shorter than the filters or the method need."""
+
+
+class ImplausibleSampleError(InvalidSignalError):
+    """A trace holds physically impossible samples (a spindle at -3.3e6 rpm, a position jump...).
+
+    The message names each sample's channel, line (or sample index), value and
+    why; the :class:`~drivesense.io.plausibility.PlausibilityReport` behind it
+    is the exception's ``report`` attribute (None when raised without one).
+    """
+
+    report = None
 
 
 class MissingChannelError(DriveSenseError, KeyError):

@@ -10,8 +10,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, key_column, trace_reader,
-                                   write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, key_column,
+                                   trace_reader, write_json)
 
 __all__ = ["register", "archive_app"]
 
@@ -69,9 +69,10 @@ def add(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Import experiments; each import is atomic (all or nothing)."""
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     rows = []
     with _open(archive, create=True) as store:
         for f in files:

@@ -6,7 +6,7 @@ import contextlib
 import functools
 import warnings
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Literal, Optional
 
 import typer
 from rich.console import Console
@@ -16,7 +16,7 @@ from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
            "read_trace", "trace_reader", "build_estimator", "save_recording", "show_warnings", "AssumeSiOpt",
-           "FsOpt", "ResampleOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
+           "FsOpt", "ResampleOpt", "BadSamplesOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -132,8 +132,8 @@ def accuracy_table(rows: list[dict], title: str) -> Table:
     return table
 
 
-#: ``--assume-si``, ``--fs HZ`` and ``--resample HZ``: the options of every command that reads traces
-#: (give them to :func:`read_trace` or :func:`trace_reader`).
+#: ``--assume-si``, ``--fs HZ``, ``--resample HZ`` and ``--bad-samples``: the options of every command that
+#: reads traces (give them to :func:`read_trace` or :func:`trace_reader`).
 AssumeSiOpt = Annotated[bool, typer.Option(
     "--assume-si", help="CSV traces: read columns without a unit in the header as SI (m, rad, A, s...); "
                         "without this they are refused.")]
@@ -142,26 +142,40 @@ FsOpt = Annotated[Optional[float], typer.Option(
 ResampleOpt = Annotated[Optional[float], typer.Option(
     "--resample", metavar="HZ", help="CSV traces with jittery time stamps: resample them explicitly onto a "
                                      "uniform grid at HZ [Hz] (linear interpolation, noted in the provenance).")]
+BadSamplesOpt = Annotated[Optional[Literal["refuse", "repair", "off"]], typer.Option(
+    "--bad-samples", metavar="refuse|repair|off", show_default=False,
+    help="Physically impossible samples in a trace (non-finite, a spindle beyond 100000 rpm, isolated spikes, "
+         "position jumps the logged velocity cannot explain): refuse them naming channel, line, value and why; "
+         "repair them by linear interpolation of their neighbours (listed in the recording's metadata and as "
+         "warnings); or off: read the values as they are.  Default: refuse for CSV traces; .nc and .xml "
+         "recordings (drivesense's own, lossless) are checked only when this option is given.")]
 
 
 def read_trace(path: Path, axis_name: str = "x", *, fs: Optional[float] = None, resample: Optional[float] = None,
-               assume_si: bool = False):
+               assume_si: bool = False, bad_samples: Optional[str] = None):
     """Read a CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment.
 
     ``fs``, ``resample`` and ``assume_si`` are the options ``--fs``, ``--resample`` and ``--assume-si``
     (:data:`FsOpt`, :data:`ResampleOpt`, :data:`AssumeSiOpt`); they concern CSV traces only (a .nc or .xml
-    recording carries its time base and units).
+    recording carries its time base and units).  ``bad_samples`` is ``--bad-samples`` (:data:`BadSamplesOpt`):
+    None (not given) refuses impossible samples of CSV traces and leaves .nc/.xml recordings unchecked; given,
+    it applies to every format (CSV samples named by file line, the others by sample index).  Repairs and
+    notes are printed as ``warning: ...`` lines.
     """
     from drivesense.io import read_recording
 
-    if Path(path).suffix.lower() != ".csv":
-        return read_recording(path)
-    return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si)
+    with show_warnings():
+        if Path(path).suffix.lower() != ".csv":
+            return read_recording(path, bad_samples=bad_samples)
+        return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si,
+                              bad_samples=bad_samples)
 
 
-def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, assume_si: bool = False):
-    """:func:`read_trace` with a command's ``--fs``, ``--resample`` and ``--assume-si`` bound: ``read(path[, axis])``."""
-    return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si)
+def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, assume_si: bool = False,
+                 bad_samples: Optional[str] = None):
+    """:func:`read_trace` with a command's ``--fs``, ``--resample``, ``--assume-si`` and ``--bad-samples`` bound:
+    ``read(path[, axis])``."""
+    return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples)
 
 
 #: CLI option of each kind of method configuration, and the registry keyword it fills.

@@ -10,8 +10,8 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator, console,
-                                   friendly, progress_bar, save_recording, trace_reader, warn, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator,
+                                   console, friendly, progress_bar, save_recording, trace_reader, warn, write_json)
 
 __all__ = ["register"]
 
@@ -170,13 +170,14 @@ def estimate(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
     from drivesense.estimate.design import lowpass_sos
     from drivesense.io import write_csv
 
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
     zoom = _parse_window(plot_window, "--plot-window") if plot_window is not None else None
@@ -266,6 +267,7 @@ def friction(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Friction map from idling runs: position dependence, repeatability, dominant wavelengths."""
     import numpy as np
@@ -276,7 +278,7 @@ def friction(
     est = build_estimator(method, axis_file=axis_file, axis_name=axis_name)
     if est.drive != "ballscrew":
         raise ConfigError(f"friction maps are built by the ball-screw methods; --method {method} is not one")
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     est.fit([read_trace(p, axis_name) for p in idle], bin_width=bin_width * 1e-6)
     fmap = est.friction_map
     peaks = dominant_wavelengths(*wavelength_spectrum(fmap.force, fmap.position), 5)

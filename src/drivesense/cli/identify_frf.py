@@ -9,7 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, read_trace, write_json
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, read_trace,
+                                   write_json)
 
 __all__ = ["register", "parse_fix"]
 
@@ -46,6 +47,7 @@ def identify_frf(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Fit J_r, M_t, C_t, C_k, D_r, K_r and T_b to the measured FRFs and write AXIS.toml."""
     from drivesense.errors import ConfigError
@@ -59,7 +61,8 @@ def identify_frf(
                           "screw lead [m] are catalogue values; without them the fit has no physical scale")
     K_t, lead = given.pop("K_t"), given.pop("lead")
     chain = {k: given.pop(k, v) for k, v in CATALOGUE_DEFAULTS.items()}
-    rec = read_trace(trace, axis_name, fs=fs, resample=resample, assume_si=assume_si)
+    rec = read_trace(trace, axis_name, fs=fs, resample=resample, assume_si=assume_si,
+                     bad_samples=bad_samples)
     measured = measure_frf(rec, K_t=K_t, lead=lead, axis_name=axis_name, nperseg=nperseg, fmin=fmin, fmax=fmax)
     fit = fit_frf(measured, K_t=K_t, lead=lead, fixed=given, **chain)
     write_axis_file(out, fit.axis, fit.signal)

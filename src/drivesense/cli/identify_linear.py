@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, read_trace, show_warnings,
-                                   trace_reader, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, read_trace,
+                                   show_warnings, trace_reader, write_json)
 
 __all__ = ["register", "parse_motor_constants", "estimate_model"]
 
@@ -52,12 +52,13 @@ def identify_linear(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Identify restoring force, cogging, Stribeck friction, masses and presliding of X/Y/Z and write AXES.toml."""
     from drivesense.identify.linear_axis import run_identification
     from drivesense.io.axes_file import write_axes_file
 
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     recs = [read_trace(p) for p in air_moves]
     with show_warnings():
         report = run_identification(recs, motor_constants=parse_motor_constants(km) if km else None,

@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, show_warnings, trace_reader,
-                                   warn, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, show_warnings,
+                                   trace_reader, warn, write_json)
 
 __all__ = ["register", "parse_axis_values"]
 
@@ -63,12 +63,13 @@ def identify_nc(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Identify force constants, masses, weight, friction and ripple from a calibration cut and air cuts."""
     from drivesense.identify.controller import identify_controller
     from drivesense.io.axes_file import write_axes_file
 
-    read = trace_reader(fs, resample, assume_si)
+    read = trace_reader(fs, resample, assume_si, bad_samples)
     recs = [read(p) for p in traces]
     with show_warnings():
         report = identify_controller(recs, km=parse_axis_values(km, "--km", "N/A") if km else None,

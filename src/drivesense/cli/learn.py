@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, check_output_folder, console, err_console,
-                                   friendly, progress_bar, trace_reader, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, check_output_folder, console,
+                                   err_console, friendly, progress_bar, trace_reader, write_json)
 
 __all__ = ["register"]
 
@@ -73,6 +73,7 @@ def train(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Train one network per force component (and save state_dicts + config)."""
     from drivesense.errors import ConfigError
@@ -92,7 +93,7 @@ def train(
         from drivesense.io.axes_file import read_axes_file
 
         kwargs["model_based"] = read_axes_file(axes)
-    runs = [rec for _, rec in load_dataset(data, read=trace_reader(fs, resample, assume_si))]
+    runs = [rec for _, rec in load_dataset(data, read=trace_reader(fs, resample, assume_si, bad_samples))]
     config = TrainConfig(epochs=epochs, seed=seed, position_harmonics=harmonics, pole_pitch=pole_pitch_mm * 1e-3,
                          linear_skip=skip, skip_taps=skip_taps, presliding_length=presliding_um * 1e-6)
     est = (Hybrid if kind == "hybrid" else LSTM)(config=config)

@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, trace_reader
+from drivesense.cli.common import AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader
 
 __all__ = ["register", "feed_speed_of"]
 
@@ -109,6 +109,7 @@ def plot(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Time trace and amplitude spectrum of one channel in one PNG."""
     from functools import partial
@@ -116,7 +117,7 @@ def plot(
     from drivesense.errors import ConfigError
     from drivesense.plot import plot_trace_spectrum, save_figure
 
-    rec = _read(file, measurement, partial(trace_reader(fs, resample, assume_si), axis_name=axis_name))
+    rec = _read(file, measurement, partial(trace_reader(fs, resample, assume_si, bad_samples), axis_name=axis_name))
     channel = _channel_name(rec, channel, axis_name)
     out = out or file.with_name(f"{file.stem}_{channel}{'_wavelength' if wavelength else ''}.png")
     rec.require(channel)

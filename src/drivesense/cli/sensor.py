@@ -9,8 +9,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, FsOpt, ResampleOpt, console, err_console, friendly, key_column,
-                                   progress_bar, save_recording, trace_reader, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, err_console, friendly,
+                                   key_column, progress_bar, save_recording, trace_reader, write_json)
 
 __all__ = ["register", "sensor_app"]
 
@@ -73,11 +73,12 @@ def calibrate(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Linearity check, ratio spectrum and a regularised deconvolution filter from paired recordings."""
     from drivesense.identify.sensor import calibrate_sensor
 
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     recs = [read_trace(p) for p in pairs]
     cal = calibrate_sensor(recs, band=_band(band), sensor_channel=sensor_channel,
                            reference_channel=reference_channel)
@@ -125,6 +126,7 @@ def apply(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Deconvolve the cheap sensor's signal into acceleration in m/s^2 (channel 'acceleration')."""
     import numpy as np
@@ -132,7 +134,7 @@ def apply(
     from drivesense.identify.sensor import SensorCalibration, deconvolution_residual
 
     cal = SensorCalibration.load(filter_path)
-    rec = trace_reader(fs, resample, assume_si)(recording)
+    rec = trace_reader(fs, resample, assume_si, bad_samples)(recording)
     result = cal.apply(rec, channel=sensor_channel)
     save_recording(result, out)
     acc = result["acceleration"]

@@ -7,7 +7,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from drivesense.cli.common import AssumeSiOpt, FsOpt, ResampleOpt, console, friendly, trace_reader, write_json
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader,
+                                   write_json)
 
 __all__ = ["register", "xml_app"]
 
@@ -46,11 +47,12 @@ def export(
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
+    bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Write recordings as one experiment file (atomically)."""
     from drivesense.io.xml_format import write_xml
 
-    read_trace = trace_reader(fs, resample, assume_si)
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     recs = [read_trace(p) for p in recordings]
     write_xml(recs, out, encoding=encoding, dtype=dtype, experimenter=experimenter)
     console.print(f"wrote {out}: {len(recs)} measurement(s)", markup=False, highlight=False)

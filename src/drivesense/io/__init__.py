@@ -1,4 +1,4 @@
-"""Reading and writing Recordings: CSV, netCDF4.
+"""Reading and writing Recordings: CSV, netCDF4; the plausibility check of traces (:mod:`.plausibility`).
 
 Every writer here is atomic: it writes a temporary file in the target's
 directory and moves it into place with :func:`os.replace`, so a crash never
@@ -29,6 +29,14 @@ __all__ = [
     "strict_json",
     "read_json_file",
     "JsonFileMixin",
+    "BAD_SAMPLE_POLICIES",
+    "PlausibilityLimits",
+    "PlausibilityReport",
+    "BadSample",
+    "BadSampleWarning",
+    "check_plausibility",
+    "check_channels",
+    "screen_recording",
 ]
 
 
@@ -257,9 +265,11 @@ class JsonFileMixin:
 
 from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
 from .netcdf import load_netcdf, save_netcdf  # noqa: E402
+from .plausibility import (BAD_SAMPLE_POLICIES, BadSample, BadSampleWarning, PlausibilityLimits,  # noqa: E402
+                           PlausibilityReport, check_channels, check_plausibility, screen_recording)
 
 
-def read_recording(path: str | Path, **kw: Any):
+def read_recording(path: str | Path, *, bad_samples: str | None = None, **kw: Any):
     """Read a Recording, choosing the reader by the file suffix.
 
     Parameters
@@ -267,6 +277,11 @@ def read_recording(path: str | Path, **kw: Any):
     path : str or Path
         ``.csv`` (:func:`read_csv`), ``.nc`` (:func:`load_netcdf`) or ``.xml``
         (the XML experiment format; its first measurement).
+    bad_samples : {"refuse", "repair", "off"}, optional
+        Plausibility check of the samples (``--bad-samples``, see
+        :mod:`drivesense.io.plausibility`).  Default: ``refuse`` for CSV
+        (traces from other tools, named by file line), no check for ``.nc``
+        and ``.xml`` (named by sample index when asked for).
     **kw
         Passed to :func:`read_csv` (``axis``, ``mapping``, ``fs``, ...);
         netCDF files take none.
@@ -279,21 +294,31 @@ def read_recording(path: str | Path, **kw: Any):
     ------
     ConfigError
         Unknown suffix, or keywords given for a netCDF file.
+    ImplausibleSampleError
+        Physically impossible samples, under ``refuse`` (see `bad_samples`).
     """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        return read_csv(path, **kw)
+        return read_csv(path, **kw) if bad_samples is None else read_csv(path, bad_samples=bad_samples, **kw)
     if suffix == ".nc":
         if kw:
             raise ConfigError(f"{path}: netCDF files take no reader options, got {sorted(kw)}")
-        return load_netcdf(path)
-    if suffix == ".xml":
+        rec = load_netcdf(path)
+    elif suffix == ".xml":
         if kw:
             raise ConfigError(f"{path}: XML experiment files take no reader options, got {sorted(kw)}")
         from .xml_format import read_xml
 
-        return read_xml(path)
+        rec = read_xml(path)
+    else:
+        rec = None
+    if rec is not None:
+        if bad_samples is None:
+            return rec
+        from .plausibility import screen_recording
+
+        return screen_recording(rec, bad_samples, source=path.name, stacklevel=2)
     raise ConfigError(f"{path}: unknown file type {suffix or '(no suffix)'!r} "
                       "(known: .csv, .nc, .xml)")
 

@@ -12,6 +12,10 @@ Format
 - A ``time`` column (any time unit) gives the time base; it must be uniform
   within ``rel_tol``, or be resampled explicitly (``resample``,
   ``--resample HZ``).  Without one, ``fs`` (``--fs HZ``) must be given.
+- Physically impossible samples (a spindle at -3.3e6 rpm, a position jump,
+  NaN) are refused naming their line, or repaired by interpolation
+  (``bad_samples``, ``--bad-samples refuse|repair|off``; see
+  :mod:`drivesense.io.plausibility`).
 - Bare axis channel names (``current_ref``, ``motor_angle``,
   ``table_position``...) get the prefix ``{axis}_``.
 - The Recording's metadata (``name``, ``nc_delay_s``, ``score_window``,
@@ -40,6 +44,7 @@ import numpy as np
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
 from ..metadata import meta_to_json
+from .plausibility import PlausibilityLimits, check_channels, check_policy, enforce_policy, repaired_meta
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..recording import Recording
@@ -200,7 +205,8 @@ def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str)
 def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | None = None,
              fs: float | None = None, rel_tol: float = 1e-3,
              meta: Mapping | None = None, assume_si: bool = False,
-             resample: float | None = None) -> Recording:
+             resample: float | None = None, bad_samples: str = "refuse",
+             limits: PlausibilityLimits | None = None) -> Recording:
     """Read a CSV file with a ``name [unit]`` header into a Recording (SI).
 
     Parameters
@@ -230,6 +236,17 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         (``--resample HZ``: linear interpolation between the time stamps,
         noted in the provenance), for time columns with jitter.  Needs a time
         column; not with `fs`.
+    bad_samples : {"refuse", "repair", "off"}, optional
+        What to do with physically impossible samples (``--bad-samples``; see
+        :mod:`drivesense.io.plausibility`), checked on the file's rows before
+        any resampling: ``refuse`` (default) raises naming channel, line,
+        value and why; ``repair`` interpolates them from their neighbours,
+        lists them in ``meta["repaired_samples"]`` and warns
+        (:class:`~drivesense.io.plausibility.BadSampleWarning`); ``off`` reads
+        them as they are (non-finite values are refused all the same).
+    limits : PlausibilityLimits, optional
+        Thresholds of the plausibility check (default
+        :class:`~drivesense.io.plausibility.PlausibilityLimits`).
 
     Returns
     -------
@@ -243,6 +260,9 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     InvalidSignalError
         No header or no data rows, a non-numeric cell or a non-finite value
         (naming line and column).
+    ImplausibleSampleError
+        Physically impossible samples under `bad_samples` ``refuse`` (or
+        samples ``repair`` cannot mend), naming channel, line, value and why.
     TimebaseError
         The time column is not strictly increasing or not uniform (naming the
         file line), or disagrees with `fs`.
@@ -258,6 +278,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     from ..timebase import check_fs, check_timebase, resample_uniform
 
     path = Path(path)
+    bad_samples = check_policy(bad_samples)
     fs = None if fs is None else check_fs(fs)
     if resample is not None:
         if fs is not None:
@@ -327,20 +348,30 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         raise InvalidSignalError(f"{path.name}: data rows have {values.shape[1]} cells, the "
                                  f"header has {len(header)} columns")
 
-    channels, si_units = {}, {}
+    channels, si_units, file_units = {}, {}, {}
     for j, (name, cell, info) in enumerate(columns):
         col = values[:, j] * info.factor if info.factor != 1.0 else values[:, j].copy()
         bad = np.flatnonzero(~np.isfinite(col))
-        if bad.size and name != "time":
+        if bad.size and name != "time" and bad_samples != "repair":
             raise InvalidSignalError(
                 f"{path.name}, column {cell!r}: channel {name!r} has {bad.size} non-finite "
                 f"values (first {float(values[bad[0], j])!r} at line "
-                f"{_data_linenos(_lines(path), header_lineno)[bad[0]]})")
+                f"{_data_linenos(_lines(path), header_lineno)[bad[0]]}); --bad-samples repair interpolates "
+                "isolated ones from their neighbours")
         if name == "time":
             time = col
         else:
             channels[name] = col
             si_units[name] = _units.SI_UNITS[info.quantity]
+            file_units[name] = info.unit
+
+    # --- physically impossible samples, on the file's rows (before any resampling)
+    repaired: list[dict] = []
+    if bad_samples != "off":
+        report = check_channels(channels, time=time if time_col is not None else None, fs=fs, units=file_units,
+                                source=path.name, limits=limits)
+        report = report.located(lambda: _data_linenos(_lines(path), header_lineno))
+        channels, repaired = enforce_policy(channels, report, bad_samples, stacklevel=2)
 
     if time_col is not None and resample is not None:
         where = f"{path.name}, column {header[time_col]!r}"
@@ -370,7 +401,12 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
             ([f"converted {', '.join(converted)}"] if converted else []) + \
             ([f"no unit, SI assumed (--assume-si): {', '.join(no_unit)}"] if no_unit else []) + [timebase]
+    if repaired:
+        parts.append(f"--bad-samples repair: {len(repaired)} implausible sample(s) replaced by linear "
+                     "interpolation (meta['repaired_samples'])")
     meta = {"name": path.stem, **file_meta, **_read_sidecar(path), **dict(meta or {})}
+    if repaired:
+        meta.update(repaired_meta(meta, repaired))
     rec = Recording.from_arrays(channels, fs=fs, t0=t0, units=si_units, meta=meta)
     return rec.with_provenance(f"read_csv {path.name}: " + "; ".join(parts))
 
