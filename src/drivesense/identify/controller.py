@@ -320,11 +320,14 @@ def _excitation(axis: str, others: Sequence[str], data: _AxisData, st: _Settings
 
 def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray, given: float | None):
     """Spatial period [m] of the strongest position-periodic residual, or (0, reason)."""
-    s = data.arrays[f"{axis}_position"]
-    v = data.arrays[f"{axis}_velocity"]
+    moving = np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * st.v_eps, _SLIDING_SPEED)
+    if moving.sum() < 50:
+        return 0.0, f"not excited: {int(moving.sum())} samples slide (need 50 for a position-periodic term)"
+    s = data.arrays[f"{axis}_position"][moving]      # sliding samples: at standstill the held friction hides it
+    v = data.arrays[f"{axis}_velocity"][moving]
     periods = np.array([given]) if given else _PERIODS
     gains = np.empty(periods.size)
-    r = residual - residual.mean()
+    r = residual[moving] - residual[moving].mean()
     base = float(r @ r)
     for i, lam in enumerate(periods):
         w = np.sinc(v * st.window_s / lam)
@@ -336,7 +339,7 @@ def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray
     span = float(np.ptp(s))
     if span < 2 * periods[best]:
         return 0.0, f"not excited: {span * 1e3:.3g} mm of travel cover less than two periods of {periods[best] * 1e3:.3g} mm"
-    if not given and gains[best] < max(5.0 * float(np.median(gains)), 0.01):
+    if not given and gains[best] < max(3.0 * float(np.median(gains)), 0.02):
         return 0.0, (f"not determined: no position-periodic residual stands out (best {periods[best] * 1e3:.3g} mm "
                      f"explains {gains[best] * 100:.2g} % of the residual)")
     return float(periods[best]), ""
