@@ -172,7 +172,8 @@ def _ratios(result: dict, baseline: dict) -> dict:
 
 def _learned(sets: dict, model, rate: float, sizes: Sequence[int], baseline: dict, progress) -> dict:
     from drivesense.estimate import ModelBased
-    from drivesense.learn import LSTM, Hybrid, TrainConfig, train_model
+    from drivesense.learn import LSTM, Hybrid
+    from drivesense.learn.train import TrainConfig, train_model
 
     out = {}
     for kind, cls in (("lstm", LSTM), ("hybrid", Hybrid)):
