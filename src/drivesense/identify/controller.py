@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
+from drivesense.identify.least_squares import (LeastSquaresFit, residual_variance, solve_least_squares,
+                                               variance_inflation)
 from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, ControllerTerm, axis_direction,
                                                  feature_column, friction_direction, term_unit)
 from drivesense.recording import Recording
@@ -165,48 +167,6 @@ def _velocity_noise(velocity: np.ndarray) -> float:
     return max(4.0 * mad, 1e-5)
 
 
-# ------------------------------------------------------------------ least squares
-@dataclass
-class _Fit:
-    names: list
-    theta: np.ndarray       # per column (terms, then c if fitted)
-    cov: np.ndarray
-    residual: np.ndarray
-    rss: float
-
-
-def _solve(X: np.ndarray, y: np.ndarray, names: list, ridge: float = 1e-9) -> _Fit:
-    """Ridge-regularised least squares on RMS-normalised columns; covariance with an effective sample size."""
-    scale = np.sqrt(np.mean(X ** 2, axis=0))
-    scale[scale == 0] = 1.0
-    Xs = X / scale
-    n, k = Xs.shape
-    A = Xs.T @ Xs + ridge * n * np.eye(k)
-    theta_s = np.linalg.solve(A, Xs.T @ y)
-    residual = y - Xs @ theta_s
-    rss = float(residual @ residual)
-    r0, r1 = residual[:-1], residual[1:]
-    rho = float(np.clip((r0 @ r1) / max(r0 @ r0, 1e-300), 0.0, 0.99)) if n > 2 else 0.0
-    n_eff = max(n * (1 - rho) / (1 + rho), k + 2.0)
-    s2 = rss / max(n - k, 1) * n / n_eff
-    Ainv = np.linalg.inv(A)
-    cov_s = s2 * Ainv @ (Xs.T @ Xs) @ Ainv
-    cov = cov_s / np.outer(scale, scale)
-    return _Fit(list(names), theta_s / scale, cov, residual, rss)
-
-
-def _vif(X: np.ndarray) -> np.ndarray:
-    """Variance inflation factor of each column (about zero, columns RMS-normalised)."""
-    scale = np.sqrt(np.mean(X ** 2, axis=0))
-    scale[scale == 0] = 1.0
-    Xs = X / scale
-    G = Xs.T @ Xs / Xs.shape[0]
-    try:
-        return np.diag(np.linalg.inv(G + 1e-12 * np.eye(G.shape[0])))
-    except np.linalg.LinAlgError:
-        return np.full(G.shape[0], np.inf)
-
-
 # ------------------------------------------------------------------ one axis
 @dataclass
 class _Settings:
@@ -237,24 +197,24 @@ def _columns(names, axis, data: _AxisData, st: _Settings) -> np.ndarray:
                                            period=st.period, direction=d) for n in names])
 
 
-def _fit_terms(names, axis, data: _AxisData, st: _Settings, km: float | None) -> _Fit:
+def _fit_terms(names, axis, data: _AxisData, st: _Settings, km: float | None) -> LeastSquaresFit:
     X = _columns(names, axis, data, st)
     y = data.arrays[f"{axis}_current"]
     if km is not None:
-        return _solve(X, y - data.force / km, list(names))
+        return solve_least_squares(X, y - data.force / km, list(names))
     return _fit_matrix(X, y, data, list(names), axis, st.v_eps)
 
 
-def _fit_matrix(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, axis: str, v_eps: float) -> _Fit:
+def _fit_matrix(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, axis: str, v_eps: float) -> LeastSquaresFit:
     """Air cuts and calibration cuts together: two stages when both are there in numbers, else jointly."""
     air = ~data.is_cal
     if TWO_STAGE and air.sum() >= max(10 * len(names), 200) and data.is_cal.sum() >= 50:
         sliding = data.is_cal & (np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * v_eps, _SLIDING_SPEED))
         return _two_stage(X, y, data, names, sliding if sliding.sum() >= 50 else data.is_cal)
-    return _solve(np.column_stack([X, data.force]), y, [*names, "c"])
+    return solve_least_squares(np.column_stack([X, data.force]), y, [*names, "c"])
 
 
-def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, sliding: np.ndarray) -> _Fit:
+def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, sliding: np.ndarray) -> LeastSquaresFit:
     """The machine terms from the air cuts alone (no force to confuse them), then ``c`` on the sliding calibration samples.
 
     In a cut the process force and the friction direction flip together with
@@ -265,18 +225,15 @@ def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, slidi
     where the axis slides (friction at its sliding level).
     """
     air, cal = ~data.is_cal, data.is_cal
-    first = _solve(X[air], y[air], names)
+    first = solve_least_squares(X[air], y[air], names)
     r = y[sliding] - X[sliding] @ first.theta
     f = data.force[sliding]
     ff = float(f @ f)
     if ff <= 0:
         raise IdentificationError("the calibration cuts hold no force while the axis slides")
     c = float(f @ r) / ff
-    fit_res = r - c * f
     res_cal = y[cal] - X[cal] @ first.theta - c * data.force[cal]
-    r0, r1 = fit_res[:-1], fit_res[1:]
-    rho = float(np.clip((r0 @ r1) / max(r0 @ r0, 1e-300), 0.0, 0.99))
-    s2 = float(fit_res @ fit_res) / max(fit_res.size - 1, 1) * (1 + rho) / (1 - rho)
+    s2 = residual_variance(r - c * f, 1)
     k = len(names)
     cov = np.zeros((k + 1, k + 1))
     cov[:k, :k] = first.cov
@@ -284,7 +241,7 @@ def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, slidi
     residual = np.empty_like(y)
     residual[air] = first.residual
     residual[cal] = res_cal
-    return _Fit([*names, "c"], np.append(first.theta, c), cov, residual, float(residual @ residual))
+    return LeastSquaresFit([*names, "c"], np.append(first.theta, c), cov, residual, float(residual @ residual))
 
 
 def _excitation(axis: str, others: Sequence[str], data: _AxisData, st: _Settings, fs: float) -> dict[str, str]:
@@ -380,7 +337,7 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     # collinear terms, then terms whose confidence interval includes zero, one at a time
     while True:
         X = _columns(names, axis, data, st)
-        vif = _vif(X)
+        vif = variance_inflation(X)
         candidates = [(vif[i], n) for i, n in enumerate(names) if n not in keep]
         worst = max(candidates, default=None)
         if worst is None or worst[0] < _VIF_LIMIT:
@@ -406,7 +363,7 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     return _physical(axis, names, fit, st, km, data, dropped)
 
 
-def _physical(axis, names, fit: _Fit, st: _Settings, km, data: _AxisData, dropped) -> tuple[ControllerAxis, dict, list]:
+def _physical(axis, names, fit: LeastSquaresFit, st: _Settings, km, data: _AxisData, dropped) -> tuple[ControllerAxis, dict, list]:
     """Coefficients in physical units (p = theta K_m) with delta-method confidence intervals."""
     warnings = []
     k = len(names)
@@ -519,7 +476,7 @@ def _base_scorer(traces, axes, channels, km, T: float, fs: float):
             shifted = _AxisData(data.arrays, _shift_segments(data, d), data.is_cal, data.starts)
             y = data.arrays[f"{a}_current"]
             if km.get(a) is not None:
-                fit = _solve(X, y - shifted.force / km[a], ["b"] * X.shape[1])
+                fit = solve_least_squares(X, y - shifted.force / km[a], ["b"] * X.shape[1])
             else:
                 fit = _fit_matrix(X, y, shifted, ["b"] * X.shape[1], a, _velocity_noise(data.arrays[f"{a}_velocity"]))
             total += fit.rss / var / y.size
