@@ -28,7 +28,7 @@ class LeastSquaresFit:
     theta : ndarray
         Coefficients, one per column [unit of y per unit of the column].
     cov : ndarray
-        Their covariance (autocorrelation-corrected).
+        Their covariance (autocorrelation-corrected) [product of the two coefficients' units].
     residual : ndarray
         ``y - X theta`` [unit of y].
     rss : float
