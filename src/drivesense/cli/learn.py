@@ -100,8 +100,9 @@ def train(
     est.fit(runs, progress=lambda line: err_console.print(line, highlight=False), **kwargs)
     est.save(out)
     hist = est.model.history
-    console.print(f"trained {kind} on {hist['runs']['train']} runs (validation {hist['runs']['val']}) in "
-                  f"{hist['total_seconds']:.0f} s; epochs {hist['epochs']}; wrote {out}", markup=False)
+    console.print(f"trained {kind} on {hist['runs']['train']} run(s) at {hist['fs']:g} Hz in "
+                  f"{hist['total_seconds']:.0f} s; validation: {hist['validation']}; epochs {hist['epochs']}; "
+                  f"wrote {out}", markup=False)
     write_json(json_path, {"kind": kind, "model": str(out), "history": hist,
                            "interval_scale": est.model.interval_scale})
 

@@ -7,17 +7,26 @@
     stream = est.stream(250.0); stream.push(chunk)       # hidden states carried: the same numbers
 
 Training needs PyTorch; inference runs in numba (:mod:`drivesense.learn.kernel`).
+
+A model works at its training rate.  ``estimate`` resamples a trace at another
+rate to it (polyphase, noted in the provenance) and the forces back onto the
+trace's own time base, so an estimate can be scored against the trace's
+reference; a stream at another rate is refused.  The networks are primed on
+the first input (no start transient), in batch and stream alike.  Inputs
+outside the plausible range of the training data are clipped, with an
+:class:`~drivesense.learn.features.InputRangeWarning` per trace.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from drivesense.errors import ConfigError, NotFittedError
 from drivesense.estimate.base import ForceEstimator, declared_delay, read_inputs, wrap_forces
-from drivesense.learn.features import INPUT_CHANNELS, TARGET_CHANNELS, resample_to
+from drivesense.learn.features import INPUT_CHANNELS, TARGET_CHANNELS, InputRangeWarning, resample_onto, resample_to
 from drivesense.learn.model import LearnedModel
 from drivesense.learn.train import train_model
 from drivesense.recording import Recording
@@ -98,8 +107,8 @@ class LSTM(ForceEstimator):
         return self.model
 
     @property
-    def fs(self) -> float:
-        """Sample rate the model works at [Hz]."""
+    def fs(self) -> float | None:
+        """Sample rate the model works at [Hz] (None: any, for a model built by hand without one)."""
         return self._require().config.fs
 
     @property
@@ -131,10 +140,28 @@ class LSTM(ForceEstimator):
             The trace.
         """
         fs = self._require().config.fs
-        if abs(recording.fs - fs) < 1e-9 * fs:
+        if fs is None or abs(recording.fs - fs) < 1e-9 * fs:
             return recording
         recording.require(*INPUT_CHANNELS)      # before resampling a trace that could not be estimated
         return resample_to(recording, fs)
+
+    def check_trace(self, recording: Recording) -> None:
+        """Warn (:class:`~drivesense.learn.features.InputRangeWarning`) about inputs outside the plausible
+        range of the training data, naming each channel and its count: they are clipped.
+
+        Parameters
+        ----------
+        recording : Recording
+            The trace (at the model's rate).
+        """
+        self._warn_outside(recording, {c: recording[c] for c in INPUT_CHANNELS})
+
+    def _warn_outside(self, recording: Recording, arrays: Mapping[str, np.ndarray]) -> None:
+        counts = self._require().input_scaler.outside(np.column_stack([arrays[c] for c in INPUT_CHANNELS]))
+        if counts.any():
+            listed = ", ".join(f"'{c}': {int(n)}" for c, n in zip(INPUT_CHANNELS, counts) if n)
+            warnings.warn(f"trace '{recording.meta.get('name', 'trace')}': input samples outside the plausible range "
+                          f"of the training data, clipped ({listed})", InputRangeWarning, stacklevel=3)
 
     def new_state(self, fs: float) -> dict:
         """Hidden and cell states of the three networks (and presliding states), fresh.
@@ -145,10 +172,10 @@ class LSTM(ForceEstimator):
             Sample rate [Hz]; must be the model's.
         """
         model = self._require()
-        if abs(fs - model.config.fs) > 1e-9 * fs:
+        if model.config.fs is not None and abs(fs - model.config.fs) > 1e-9 * fs:
             raise ConfigError(f"the model works at {model.config.fs:g} Hz; resample the {fs:g} Hz signals "
                               f"first (--resample {model.config.fs:g})")
-        return model.new_state()
+        return model.new_state(fs)
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """``{force_ax: F}`` [N] for the next samples, carrying ``state``.
@@ -165,7 +192,8 @@ class LSTM(ForceEstimator):
     def describe(self) -> str:
         """The network, for the provenance."""
         cfg = self._require().config
-        return f"{self.kind} {cfg.layers}x{cfg.hidden} cells per force component at {cfg.fs:g} Hz"
+        rate = "the trace's rate" if cfg.fs is None else f"{cfg.fs:g} Hz"
+        return f"{self.kind} {cfg.layers}x{cfg.hidden} cells per force component at {rate}"
 
     def estimate(self, recording: Recording, *, intervals: bool = False) -> Recording:
         """Reconstruct the process force.
@@ -182,17 +210,26 @@ class LSTM(ForceEstimator):
         Returns
         -------
         Recording
-            ``force_x``, ``force_y``, ``force_z`` [N]; ``meta["latency_s"]`` is the
-            trace's declared NC delay (the networks are trained on the force
-            delayed by it: a causal method cannot undo it).
+            ``force_x``, ``force_y``, ``force_z`` [N] on the trace's own time
+            base (resampled back from the model's rate if the trace was
+            resampled); ``meta["latency_s"]`` is the trace's declared NC delay
+            (the networks are trained on the force delayed by it: a causal
+            method cannot undo it).
         """
-        if not intervals:
-            return super().estimate(recording)
+        if not isinstance(recording, Recording):
+            return super().estimate(recording)          # the shared refusal
         model = self._require()
         rec = self.prepare(recording)
-        read_inputs(rec, self.channel_names)
-        out = wrap_forces(self, rec, model.predict(rec, intervals=True), declared_delay(rec))
-        return out.with_meta(interval_coverage=model.config.coverage)
+        arrays = read_inputs(rec, self.channel_names)
+        self._warn_outside(rec, arrays)
+        if intervals:
+            forces = model.predict(rec, intervals=True)
+        else:
+            forces = self.process(self.new_state(rec.fs), arrays)
+        out = wrap_forces(self, rec, forces, declared_delay(rec))
+        if rec is not recording:
+            out = resample_onto(out, recording)       # back on the trace's time base (provenance says so)
+        return out.with_meta(interval_coverage=model.config.coverage) if intervals else out
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(trained={self.model is not None})"

@@ -8,7 +8,9 @@ model: numba's default zero-division check on ``/`` otherwise stops the gate
 loop from vectorising, which cost a factor 1.7), with the
 hidden and cell states (and the last inputs of a multi-tap linear skip) carried
 in :class:`LSTMState`: a trace processed at once or chunk by chunk gives the
-same numbers to the bit.  Optional dropout masks
+same numbers to the bit.  A state may be primed on the first input held
+constant (:class:`LSTMState` ``warmup``) instead of starting from zero.
+Optional dropout masks
 between layers give Monte-Carlo-dropout samples for prediction intervals.
 
 Layout for the kernel: per layer, the input and recurrent weights stacked and
@@ -150,7 +152,8 @@ def skip_to_torch(skip_w: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (1, inputs, taps)
     """
-    return np.ascontiguousarray(np.asarray(skip_w, dtype=np.float64).reshape(len(skip_w), -1)[None, :, ::-1])
+    # a copy: ascontiguousarray keeps the negative stride of a one-tap filter, which torch.from_numpy refuses
+    return np.asarray(skip_w, dtype=np.float64).reshape(len(skip_w), -1)[None, :, ::-1].copy()
 
 
 class LSTMState:
@@ -160,17 +163,29 @@ class LSTMState:
     ----------
     weights : LSTMWeights
         The network.
+    warmup : int, optional
+        Priming steps: before the first row it is given, :func:`run_lstm`
+        runs the network this many steps on that row held constant (outputs
+        discarded), so that the states (and the skip's past inputs) start where
+        a machine resting in that state would hold them rather than at zero.
+        0 (default): a zero state, as PyTorch starts.
     """
 
-    def __init__(self, weights: LSTMWeights) -> None:
+    def __init__(self, weights: LSTMWeights, warmup: int = 0) -> None:
         self.h = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
         self.c = np.zeros((weights.layers, weights.hidden), dtype=np.float32)
         #: the last ``taps - 1`` input rows, oldest first (zeros at the start, like the causal padding in training)
         self.tail = np.zeros((weights.taps - 1, int(weights.in_dims[0])), dtype=np.float32)
+        #: priming steps still to run on the first row (0 once primed)
+        self.warmup = int(warmup)
 
 
 def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int | None = None) -> np.ndarray:
     """Run the network over the rows of ``x`` (scaled inputs) and return one output per row.
+
+    A state with priming steps pending (``LSTMState(weights, warmup=n)``) is
+    first run ``n`` steps on the first row of the first non-empty call, so a
+    trace processed at once or chunk by chunk is primed alike.
 
     Parameters
     ----------
@@ -190,15 +205,22 @@ def run_lstm(weights: LSTMWeights, state: LSTMState, x: np.ndarray, *, seed: int
         Network output (float64).
     """
     x = np.ascontiguousarray(x, dtype=np.float32)
-    out = np.empty(x.shape[0], dtype=np.float32)
+    if state.warmup > 0 and x.shape[0] > 0:
+        _run(weights, state, np.repeat(x[:1], state.warmup, axis=0), 0.0, -1)   # prime: the first row held
+        state.warmup = 0
     p = weights.dropout if seed is not None else 0.0
+    return _run(weights, state, x, p, -1 if seed is None else int(seed)).astype(np.float64)
+
+
+def _run(weights: LSTMWeights, state: LSTMState, x: np.ndarray, p: float, seed: int) -> np.ndarray:
+    """One kernel call over the rows of ``x`` (float32, contiguous), carrying ``state``; float32 outputs."""
+    out = np.empty(x.shape[0], dtype=np.float32)
     _lstm(weights.packed, weights.packed_bias, weights.gate_scale, weights.in_dims, weights.packed_head,
-          np.float32(weights.head_b), weights.packed_skip, state.tail, state.h, state.c, x, out, np.float32(p),
-          -1 if seed is None else int(seed))
+          np.float32(weights.head_b), weights.packed_skip, state.tail, state.h, state.c, x, out, np.float32(p), seed)
     keep = state.tail.shape[0]
     if keep:
         state.tail = np.ascontiguousarray(np.vstack([state.tail, x])[-keep:])
-    return out.astype(np.float64)
+    return out
 
 
 _F = np.float32

@@ -7,13 +7,19 @@ inference in numba.  :func:`drivesense.learn.train.train_model` builds one.
 
 A trained model is a folder: ``config.json`` (architecture, scalers, interval
 calibration, training history) and one ``weights_{x,y,z}.pt`` per network
-(``state_dict``, loaded with ``weights_only=True``).
+(``state_dict``, loaded with ``weights_only=True``); the format is
+:data:`MODEL_FORMAT`, and folders of the first format still load.
+
+A model works at one sample rate (its training runs' own, unless set): every
+length in its settings is resolved to samples at that rate when it is trained
+(:meth:`TrainConfig.at_rate`).  Its networks are primed on a trace's first
+input (``TrainConfig.warmup_s``), so an estimate has no start transient.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +31,7 @@ from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, 
 from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm, skip_to_torch
 from drivesense.recording import Recording
 
-__all__ = ["TrainConfig", "LearnedModel", "require_torch"]
+__all__ = ["TrainConfig", "LearnedModel", "require_torch", "MODEL_FORMAT"]
 
 
 def require_torch():
@@ -50,12 +56,17 @@ class TrainConfig:
         Stacked layers.
     dropout : float
         Dropout probability between layers [-] (training and Monte-Carlo sampling).
-    fs : float
-        Sample rate the model works at [Hz] (traces are resampled explicitly).
-    window : int
-        Training window [samples].
-    burn_in : int
-        Leading samples of a window excluded from the loss.
+    fs : float, optional
+        Sample rate the model works at [Hz] (traces at another rate are
+        resampled explicitly).  None (default): the training runs' own rate
+        (the highest, if they differ); :func:`~drivesense.learn.train.train_model`
+        saves the resolved value.
+    window : int, optional
+        Training window [samples]; None (default): ``window_s`` at the model's rate.
+    burn_in : int, optional
+        Leading samples of a window excluded from the loss (the network warms
+        up over them from a zero state); None (default): ``burn_in_s`` at the
+        model's rate.
     batch : int
         Windows per batch.
     windows_per_epoch : int
@@ -86,8 +97,9 @@ class TrainConfig:
         Samples the linear skip looks back over: a causal FIR filter of the
         inputs (and, in a hybrid, of the model's estimate), which can undo
         the small lags and roll-offs a sample-by-sample map leaves; 1 is an
-        instantaneous map.  None (default): 4 for an LSTM, 8 for a hybrid
-        (each the better on the validation runs of the built dataset).
+        instantaneous map.  None (default): 16 ms for an LSTM, 32 ms for a
+        hybrid at the model's rate, at least one tap (4 and 8 taps at 250 Hz,
+        each the better on the validation runs of the built dataset).
     skip_lr_factor : float
         Learning rate of the skip (already at its least-squares optimum) relative
         to ``lr`` [-]: small values keep the LSTM from trading the linear fit away early.
@@ -104,14 +116,29 @@ class TrainConfig:
         Epochs without improvement before the learning rate is decayed.
     grad_clip : float
         Largest gradient norm per step [-] (0: no clipping).
+    window_s : float
+        Training window [s] where ``window`` is None (1 s: 250 samples at 250 Hz).
+    burn_in_s : float
+        Burn-in [s] where ``burn_in`` is None (0.2 s: 50 samples at 250 Hz).
+    warmup_s : float, optional
+        Priming of the networks' states [s]: before the first sample of a trace
+        (or of a stream) each network runs this long on the first input held
+        constant, so that it starts as if the machine had rested in that state
+        instead of from a zero state (which gave start transients many times the
+        force's range).  None (default): the burn-in's length, over which training
+        teaches the networks to settle from a zero state; 0: no priming.
+    val_fraction : float
+        Share of each training run held out for validation [-] when no run has
+        ``meta["split"] == "val"`` (one or two files): the time split of
+        :func:`~drivesense.learn.train.train_model`.
     """
 
     hidden: int = 20
     layers: int = 3
     dropout: float = 0.1
-    fs: float = 250.0
-    window: int = 250
-    burn_in: int = 50
+    fs: float | None = None
+    window: int | None = None
+    burn_in: int | None = None
     batch: int = 128
     windows_per_epoch: int = 4096
     epochs: int = 100
@@ -129,8 +156,30 @@ class TrainConfig:
     lr_decay: float = 0.5
     lr_patience: int = 3
     grad_clip: float = 1.0
+    window_s: float = 1.0
+    burn_in_s: float = 0.2
+    warmup_s: float | None = None
+    val_fraction: float = 0.2
 
     def __post_init__(self) -> None:
+        if self.fs is not None and not (_is_number(self.fs) and self.fs > 0):
+            raise ConfigError(f"'fs' must be a sample rate > 0 [Hz] or None (the training runs' rate), "
+                              f"got {self.fs!r}")
+        for name in ("window", "burn_in"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < (2 if name == "window" else 0)):
+                raise ConfigError(f"'{name}' must be an integer number of samples (or None: '{name}_s' at the "
+                                  f"model's rate), got {v!r}")
+        if self.window is not None and self.burn_in is not None and self.burn_in >= self.window:
+            raise ConfigError(f"'burn_in' ({self.burn_in}) must be shorter than 'window' ({self.window}) [samples]")
+        if not (_is_number(self.window_s) and self.window_s > 0):
+            raise ConfigError(f"'window_s' must be a duration > 0 [s], got {self.window_s!r}")
+        if not (_is_number(self.burn_in_s) and 0 <= self.burn_in_s < self.window_s):
+            raise ConfigError(f"'burn_in_s' must be a duration >= 0 [s] shorter than 'window_s', got {self.burn_in_s!r}")
+        if self.warmup_s is not None and not (_is_number(self.warmup_s) and self.warmup_s >= 0):
+            raise ConfigError(f"'warmup_s' must be a duration >= 0 [s] or None (the burn-in), got {self.warmup_s!r}")
+        if not (_is_number(self.val_fraction) and 0 < self.val_fraction <= 0.5):
+            raise ConfigError(f"'val_fraction' must be in (0, 0.5], got {self.val_fraction!r}")
         if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
             raise ConfigError(f"'epochs' must be an integer >= 1 (0 saves an untrained model), got {self.epochs!r}")
         if isinstance(self.position_harmonics, bool) or not isinstance(self.position_harmonics, int) \
@@ -150,10 +199,69 @@ class TrainConfig:
         if self.grad_clip < 0:
             raise ConfigError(f"'grad_clip' must be >= 0 (0: no clipping), got {self.grad_clip!r}")
 
+    def at_rate(self, fs: float, kind: str = "lstm") -> "TrainConfig":
+        """The settings with everything given in seconds resolved to samples at ``fs`` [Hz].
+
+        ``fs`` (if open), ``window``, ``burn_in`` and ``skip_taps`` are filled
+        in: 1 s and 0.2 s of samples, and a skip over 16 ms (LSTM) or 32 ms
+        (hybrid), at least one tap; at 250 Hz 250, 50, 4 and 8 samples.
+
+        Parameters
+        ----------
+        fs : float
+            The model's sample rate [Hz] (ignored when ``fs`` is already set).
+        kind : {"lstm", "hybrid"}
+            Which default skip length applies.
+
+        Returns
+        -------
+        TrainConfig
+        """
+        fs = float(self.fs if self.fs is not None else fs)
+        window = self.window if self.window is not None else max(2, int(round(self.window_s * fs)))
+        burn_in = self.burn_in if self.burn_in is not None else int(round(self.burn_in_s * fs))
+        if burn_in >= window:
+            raise ConfigError(f"the burn-in ({burn_in} samples) must be shorter than the window ({window} samples) "
+                              f"at {fs:g} Hz")
+        taps = self.skip_taps if self.skip_taps is not None else max(1, int(round(_DEFAULT_SKIP_S[kind] * fs)))
+        return replace(self, fs=fs, window=window, burn_in=burn_in, skip_taps=min(taps, 64))
+
+    def warmup_steps(self, fs: float) -> int:
+        """Steps the networks are primed over at ``fs`` [Hz] (see ``warmup_s``).
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz] (the model's; used when the settings leave it open).
+
+        Returns
+        -------
+        int
+        """
+        fs = float(self.fs if self.fs is not None else fs)
+        if self.warmup_s is not None:
+            return int(round(self.warmup_s * fs))
+        return self.burn_in if self.burn_in is not None else int(round(self.burn_in_s * fs))
+
+
+def _is_number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and np.isfinite(v)
+
+
+#: Span of the linear skip where the settings leave ``skip_taps`` open [s] (4 and 8 taps at 250 Hz, each the
+#: better on the built dataset's validation runs)
+_DEFAULT_SKIP_S = {"lstm": 0.016, "hybrid": 0.032}
+
+#: Format of a saved model folder: 2 added the settings in seconds (``window_s``, ``burn_in_s``, ``warmup_s``,
+#: ``val_fraction``) and the input scaler's plausible limits; folders of format 1 load as they were (no
+#: clipping), primed on their burn-in.
+MODEL_FORMAT = "drivesense-learned-2"
+_READABLE_FORMATS = ("drivesense-learned-1", MODEL_FORMAT)
 
 _POOL = None
 #: Shortest input for which the three networks run side by side on the thread pool; shorter ones (stream
-#: chunks) run one after the other: below ~250 samples the pool costs more than it saves (measured).
+#: chunks) run one after the other: below ~250 samples the pool costs more than it saves (measured).  A count of
+#: kernel steps, not a duration: a step costs the same at any trace rate.
 _PARALLEL_MIN_SAMPLES = 256
 
 
@@ -294,10 +402,28 @@ class LearnedModel:
             return x
         return np.column_stack([x, base / self.force_scale[channel]]).astype(np.float32)
 
-    def new_state(self) -> dict:
+    @property
+    def fs(self) -> float | None:
+        """Sample rate the model works at [Hz] (None: not fixed, for a model built by hand)."""
+        return self.config.fs
+
+    def new_state(self, fs: float | None = None) -> dict:
         """A fresh carried state: each network's hidden/cell state, the presliding states of the inputs
-        and (hybrid) of the model part; constant size."""
-        return {"networks": {ch: LSTMState(w) for ch, w in self.weights.items()}, "inputs": {}, "model": {}}
+        and (hybrid) of the model part; constant size.
+
+        Each network is primed on its first input (``TrainConfig.warmup_s``)
+        when the first samples arrive, in batch and stream alike.
+
+        Parameters
+        ----------
+        fs : float, optional
+            Rate of the signals [Hz] (default: the model's); sets the priming's
+            length in steps when the model's rate is not fixed.
+        """
+        fs = self.config.fs if fs is None else fs
+        steps = self.config.warmup_steps(fs) if fs is not None else 0
+        return {"networks": {ch: LSTMState(w, warmup=steps) for ch, w in self.weights.items()}, "inputs": {},
+                "model": {}}
 
     def forward(self, state: dict, arrays, *, network_inputs: dict | None = None) -> dict[str, np.ndarray]:
         """Force per channel [N] for the next samples of ``{channel: samples}`` (SI), carrying ``state``.
@@ -350,15 +476,15 @@ class LearnedModel:
         """
         recording.require(*INPUT_CHANNELS)
         inputs: dict = {}
-        out = self.forward(self.new_state(), {c: recording[c] for c in recording.channels},
+        out = self.forward(self.new_state(recording.fs), {c: recording[c] for c in recording.channels},
                            network_inputs=inputs if intervals else None)
         if intervals:
             for ch in TARGET_CHANNELS:
-                half = self.interval_scale[ch] * self.interval_spread(ch, inputs[ch])
+                half = self.interval_scale[ch] * self.interval_spread(ch, inputs[ch], fs=recording.fs)
                 out[f"{ch}_lower"], out[f"{ch}_upper"] = out[ch] - half, out[ch] + half
         return out
 
-    def interval_spread(self, channel: str, x: np.ndarray) -> np.ndarray:
+    def interval_spread(self, channel: str, x: np.ndarray, *, fs: float | None = None) -> np.ndarray:
         """Uncalibrated half-width of ``channel``'s prediction interval [N]: twice the Monte-Carlo
         dropout spread plus a floor of 0.1 % of the force scale (:attr:`interval_scale` calibrates it).
 
@@ -368,6 +494,8 @@ class LearnedModel:
             Force channel (``force_x``...).
         x : ndarray, shape (n_samples, n_inputs)
             The network's input matrix [-] (:meth:`network_input`).
+        fs : float, optional
+            Rate of the samples [Hz] (default: the model's), for the priming.
 
         Returns
         -------
@@ -375,7 +503,9 @@ class LearnedModel:
             Half-width per sample [N].
         """
         ts = self.target_scalers[channel]
-        spread = _mc_spread(self.weights[channel], x, self.config.mc_samples, self.config.seed)
+        fs = self.config.fs if fs is None else fs
+        steps = self.config.warmup_steps(fs) if fs is not None else 0
+        spread = _mc_spread(self.weights[channel], x, self.config.mc_samples, self.config.seed, steps)
         return spread * 2.0 * ts.f_max + 1e-3 * ts.f_max
 
     # ---------------------------------------------------------- persistence
@@ -397,7 +527,7 @@ class LearnedModel:
         for ch in TARGET_CHANNELS:
             w = self.weights[ch]
             torch.save(_to_state_dict(w, torch), folder / f"weights_{ch[-1]}.pt")
-        cfg = {"format": "drivesense-learned-1", "kind": self.kind, "config": asdict(self.config),
+        cfg = {"format": MODEL_FORMAT, "kind": self.kind, "config": asdict(self.config),
                "inputs": list(INPUT_CHANNELS), "targets": list(TARGET_CHANNELS),
                "input_scaler": self.input_scaler.to_dict(),
                "target_scalers": {k: v.f_max for k, v in self.target_scalers.items()},
@@ -431,8 +561,9 @@ class LearnedModel:
         if not path.is_file():
             raise FileNotFoundError(f"'{folder}' is not a drivesense model folder (no config.json)")
         cfg = json.loads(path.read_text(encoding="utf-8"))
-        if cfg.get("format") != "drivesense-learned-1":
-            raise ConfigError(f"'{path}': unknown model format {cfg.get('format')!r}")
+        if cfg.get("format") not in _READABLE_FORMATS:
+            raise ConfigError(f"'{path}': unknown model format {cfg.get('format')!r} (this drivesense reads "
+                              f"{', '.join(_READABLE_FORMATS)}; a newer drivesense wrote it?)")
         settings = dict(cfg["config"])
         settings.setdefault("position_harmonics", 0)     # models saved before these had the paper's network
         settings.setdefault("linear_skip", False)
@@ -471,6 +602,6 @@ def _to_state_dict(w: LSTMWeights, torch) -> dict:
     return state
 
 
-def _mc_spread(w: LSTMWeights, x: np.ndarray, samples: int, seed: int) -> np.ndarray:
-    draws = np.stack([run_lstm(w, LSTMState(w), x, seed=seed + 1 + k) for k in range(samples)])
+def _mc_spread(w: LSTMWeights, x: np.ndarray, samples: int, seed: int, warmup: int = 0) -> np.ndarray:
+    draws = np.stack([run_lstm(w, LSTMState(w, warmup=warmup), x, seed=seed + 1 + k) for k in range(samples)])
     return draws.std(axis=0)
