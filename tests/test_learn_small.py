@@ -108,7 +108,7 @@ def test_train_on_two_files_with_a_corrupt_sample(traces):
     j = INPUT_CHANNELS.index("spindle_speed")
     sc = model.input_scaler
     clean = np.concatenate([cut["spindle_speed"], air["spindle_speed"]])
-    assert sc.high[j] == pytest.approx(clean.max()) and sc.low[j] == 0.0      # positive column, range of the clean data
+    assert sc.constant[j] and sc.low[j] == pytest.approx(clean.min())     # one spindle speed: constant, clean range
     assert -0.1 * clean.max() < sc.clip_low[j] < clean.min() and clean.max() < sc.clip_high[j] < 3 * clean.max()
     out = hyb.estimate(held)
     assert out.n_samples == held.n_samples and all(np.all(np.isfinite(out[c])) for c in out.channels)
@@ -136,6 +136,22 @@ def test_scaler_ignores_a_corrupt_sample_and_keeps_legitimate_excursions(traces)
     lo, hi = plausible_range(np.r_[np.zeros(500), np.linspace(0, 0.1, 20)])     # a rare ramp stays plausible
     assert lo < 0 and hi > 0.1
     assert plausible_range(np.full(100, 3.0))[1] > 3.0 and plausible_range(np.zeros(100)) == (-np.inf, np.inf)
+
+
+def test_a_column_constant_in_training_is_scaled_to_zero(traces):
+    cut, _, held = traces                                   # trained at 3500 min^-1, held out at 4500 min^-1
+    scaler = Scaler.fit([input_matrix(cut)])
+    j = INPUT_CHANNELS.index("spindle_speed")
+    assert scaler.constant[j] and np.ptp(cut["spindle_speed"]) < 0.01 * cut["spindle_speed"].max()
+    assert not scaler.constant[INPUT_CHANNELS.index("x_current")]
+    # no weight can be put on it: zero in training and on a trace at another speed (was 1.0 and 1.29)
+    assert np.all(scaler.transform(input_matrix(cut))[:, j] == 0.0)
+    assert np.all(scaler.transform(input_matrix(held))[:, j] == 0.0)
+    again = Scaler.from_dict(json.loads(json.dumps(scaler.to_dict())))
+    np.testing.assert_array_equal(again.constant, scaler.constant)
+    old = scaler.to_dict()
+    del old["constant"]                                     # a model saved before: no column is constant
+    assert Scaler.from_dict(old).constant is None
 
 
 def test_no_start_transient_and_stream_equals_batch(one_file, traces):

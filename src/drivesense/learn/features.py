@@ -8,7 +8,13 @@ samples (a logger's corrupt value, e.g. a spindle speed of -3.3e6 rpm): a
 sample further from the bulk of its column (0.5-99.5 % quantiles, at least two
 samples trimmed at each end) than ten times the bulk's width is flagged with
 a warning naming the channel and the count, left out of the range and clipped
-to the plausible limits wherever the scaler is applied.  Targets (the
+to the plausible limits wherever the scaler is applied.  A column that does
+not vary in the training data (one spindle speed in every training cut: its
+plausible samples span less than 1 % of their magnitude) tells the networks
+nothing: it is scaled to zero wherever the scaler is applied, so
+no weight can be put on it (a weight that would otherwise share the constant
+output with the bias, and turn a held-out trace's other spindle speed into an
+offset of hundreds of newtons).  Targets (the
 reference force) are low-passed zero-phase (Butterworth) at the paper's
 120 Hz, or at 0.48 times the trace's rate where that is lower
 (:func:`target_cutoff_hz`: a trace at 50 Hz is filtered at 24 Hz), and scaled
@@ -44,6 +50,9 @@ _BULK_QUANTILE = 0.005
 _PLAUSIBLE_WIDTHS = 10.0
 #: The bulk's width is taken as at least this share of its largest magnitude (near-constant columns).
 _WIDTH_FLOOR = 0.1
+#: A column whose plausible training samples span less than this share of their largest magnitude is constant:
+#: a spindle speed held at one value with 0.1 % ripple, a Z axis parked within a millimetre at 0.15 m.
+_CONSTANT_SPAN = 0.01
 
 
 class InputRangeWarning(UserWarning):
@@ -98,6 +107,9 @@ class Scaler:
         Plausible limits of each column [SI unit of the column]
         (:func:`plausible_range`); inputs are clipped to them before scaling.
         None: no clipping (models saved before the limits existed).
+    constant : ndarray of bool, optional
+        Columns that did not vary in the training data, scaled to zero
+        whatever their value.  None: none (models saved before this existed).
     """
 
     low: np.ndarray
@@ -105,6 +117,7 @@ class Scaler:
     positive: np.ndarray
     clip_low: np.ndarray | None = field(default=None)
     clip_high: np.ndarray | None = field(default=None)
+    constant: np.ndarray | None = field(default=None)
 
     @classmethod
     def fit(cls, matrices, names=None) -> "Scaler":
@@ -112,7 +125,8 @@ class Scaler:
 
         A sample outside its column's :func:`plausible_range` (over all
         matrices) is left out of the range; an :class:`InputRangeWarning`
-        names each such column and its count.
+        names each such column and its count.  A column whose plausible
+        samples do not vary is marked constant (scaled to zero).
 
         Parameters
         ----------
@@ -148,11 +162,11 @@ class Scaler:
         if flagged:
             warnings.warn("training inputs hold implausible samples, left out of the scaling and clipped: "
                           + "; ".join(flagged), InputRangeWarning, stacklevel=2)
-        positive = low > 0
+        constant = (high - low) <= _CONSTANT_SPAN * np.maximum(np.abs(low), np.abs(high))
+        positive = (low > 0) & ~constant
         low = np.where(positive, 0.0, low)
-        span = high - low
-        high = np.where(span > 0, high, low + 1.0)  # constant columns map to the bottom of the range
-        return cls(low, high, positive, clip_low, clip_high)
+        high = np.where(constant, low + 1.0, high)
+        return cls(low, high, positive, clip_low, clip_high, constant)
 
     def outside(self, x: np.ndarray) -> np.ndarray:
         """Samples per column outside the plausible limits (those :meth:`transform` clips).
@@ -188,7 +202,10 @@ class Scaler:
         if self.clip_low is not None:
             x = np.clip(x, self.clip_low, self.clip_high)
         u = (x - self.low) / (self.high - self.low)
-        return np.where(self.positive, u, 2.0 * u - 1.0).astype(np.float32)
+        u = np.where(self.positive, u, 2.0 * u - 1.0)
+        if self.constant is not None:
+            u = np.where(self.constant, 0.0, u)
+        return u.astype(np.float32)
 
     def to_dict(self) -> dict:
         """JSON-ready form (infinite limits as None)."""
@@ -196,6 +213,8 @@ class Scaler:
         if self.clip_low is not None:
             d["clip_low"] = [None if not np.isfinite(v) else float(v) for v in self.clip_low]
             d["clip_high"] = [None if not np.isfinite(v) else float(v) for v in self.clip_high]
+        if self.constant is not None:
+            d["constant"] = self.constant.tolist()
         return d
 
     @classmethod
@@ -205,8 +224,9 @@ class Scaler:
         Parameters
         ----------
         d : dict
-            ``{"low", "high", "positive"}`` lists, and ``{"clip_low", "clip_high"}``
-            (None for no limit) where the model has plausible limits.
+            ``{"low", "high", "positive"}`` lists, ``{"clip_low", "clip_high"}``
+            (None for no limit) where the model has plausible limits, and
+            ``"constant"`` where it marks constant columns.
 
         Returns
         -------
@@ -217,8 +237,9 @@ class Scaler:
             if "clip_low" in d:
                 clip = [np.array([sign * np.inf if v is None else v for v in d[key]], float)
                         for key, sign in (("clip_low", -1.0), ("clip_high", 1.0))]
+            constant = np.asarray(d["constant"], bool) if "constant" in d else None
             return cls(np.asarray(d["low"], float), np.asarray(d["high"], float), np.asarray(d["positive"], bool),
-                       *clip)
+                       *clip, constant)
         except KeyError as exc:
             raise ConfigError(f"input scaler lacks {exc.args[0]!r}") from None
 
