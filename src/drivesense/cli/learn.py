@@ -65,8 +65,9 @@ def train(
     skip: Annotated[bool, typer.Option("--skip/--no-skip", help="Linear path from the inputs to the output "
                                                                 "beside the LSTM (--no-skip: the paper's network).")] = True,
     skip_taps: Annotated[Optional[int], typer.Option(help="Samples the linear path looks back over (a causal FIR "
-                                                          "filter; 1: instantaneous; default 4 for lstm, 8 for "
-                                                          "hybrid).")] = None,
+                                                          "filter; 1: instantaneous; default 16 ms for lstm, 32 "
+                                                          "ms for hybrid at the model's rate: 4 and 8 samples at "
+                                                          "250 Hz, 1 and 2 at 50 Hz).")] = None,
     presliding_um: Annotated[float, typer.Option(help="Nominal presliding distance of the guides [um] for the "
                                                       "presliding-state inputs (0: left out).")] = 10.0,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the training record here.")] = None,
