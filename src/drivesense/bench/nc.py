@@ -8,7 +8,10 @@ programs and cutting parameters on the same machine):
 
 * ``identify nc`` from the calibration cut plus the ordinary air cut (the dry
   run of the same program), then ModelBased;
-* the LSTM and the hybrid trained on 1, 2 and 5 calibration cuts;
+* the LSTM and the hybrid trained on 1, 2 and 5 calibration cuts (at the
+  trace's rate up to the paper's 250 Hz, :data:`LEARNED_FS`), beside the
+  regression fitted on the same files (``regression_N``: what more files give
+  a linear map);
 * at 50 Hz and at 500 Hz (the simulator's edge-device traces).
 
 Every figure is NRMSE per axis pooled over the held-out cuts (RMSE of all
