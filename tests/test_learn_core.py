@@ -18,9 +18,11 @@ def test_input_scaler_maps_training_range():
     u = sc.transform(a)
     assert u[:, 0].min() == pytest.approx(-1, abs=1e-6) and u[:, 0].max() == pytest.approx(1, abs=1e-6)
     # strictly positive column: [0, 1] from zero
-    assert sc.positive.tolist() == [False, True, True]
+    assert sc.positive.tolist() == [False, True, False]
     assert u[:, 1].max() == pytest.approx(1, abs=1e-6) and u[:, 1].min() > 0
-    assert np.all(np.isfinite(u[:, 2]))  # a constant column does not divide by zero
+    # a constant column carries nothing to learn from: zero, whatever its value later
+    assert sc.constant.tolist() == [False, False, True]
+    assert np.all(u[:, 2] == 0.0) and np.all(sc.transform(a + 1.0)[:, 2] == 0.0)
     again = Scaler.from_dict(sc.to_dict())
     np.testing.assert_array_equal(again.transform(a), u)
 
