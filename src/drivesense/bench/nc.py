@@ -182,21 +182,20 @@ def _learned(sets: dict, model, rate: float, sizes: Sequence[int], baseline: dic
 
     # the networks work at the paper's 250 Hz at most: the target band (120 Hz) fits below it, and a 500 Hz
     # trace would cost twice the steps for nothing the target holds
-    fs = min(rate, LEARNED_FS)
+    cfg = TrainConfig(fs=min(rate, LEARNED_FS), epochs=30, patience=6, windows_per_epoch=1024, seed=0,
+                      window_s=2.0, burn_in_s=0.4)
     out = {}
     for n in sizes:
         same = _evaluate(RegressionBaseline().fit(sets["train"][:n]), sets["held_out"])
         out[f"regression_{n}"] = {**same, "train_files": n, "ratio": _ratios(same, baseline)}
     for kind, cls in (("lstm", LSTM), ("hybrid", Hybrid)):
         for n in sizes:
-            cfg = TrainConfig(fs=fs, epochs=30, patience=6, windows_per_epoch=1024, seed=0, window_s=2.0,
-                              burn_in_s=0.4)
             started = time.perf_counter()
             trained = train_model(kind, sets["train"][:n], config=cfg,
                                   model_based=ModelBased(model) if kind == "hybrid" else None)
             seconds = time.perf_counter() - started
             res = _evaluate(cls(trained), sets["held_out"])
-            out[f"{kind}_{n}"] = {**res, "train_files": n, "train_seconds": seconds, "model_fs_hz": fs,
+            out[f"{kind}_{n}"] = {**res, "train_files": n, "train_seconds": seconds, "model_fs_hz": cfg.fs,
                                   "ratio": _ratios(res, baseline)}
             if progress:
                 progress(f"nc {rate:g} Hz {kind} on {n} file(s)")
