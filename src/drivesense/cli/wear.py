@@ -41,10 +41,14 @@ def _write_session(life, path: Path) -> Path:
     exp, t = life.experiment, life.table
     head = ["calibration", "distance [m]", "diameter [mm]", "flutes", "axial_depth [mm]", "spindle_speed [rpm]",
             "feed_per_tooth [mm]", "entry_angle [deg]", "exit_angle [deg]", "spindle_power [W]", "air_power [W]"]
+    from drivesense.sim.tool_life import PASS_LENGTH
+
     about = {"name": path.stem, "source": f"drivesense wear simulate: experiment {exp.name} of the paper's Table 1 "
              f"({exp.tool_material}, {exp.flutes} flute(s), calibrating on {exp.calibration_material})",
              "seed": life.seed, "rows": "one per calibration cut: mean spindle power in the cut and in the air cut "
                                         "before it"}
+    if not exp.continuous:        # what 'wear track' counts the next calibration in
+        about.update(cut_length_m=PASS_LENGTH, calibration_interval_m=exp.calibration_interval)
     lines = [",".join(head)]
     for c, k, d, sp, ap in zip(t.cuts, t.calibration, t.distance, life.spindle_power, life.air_power):
         lines.append(",".join([str(int(k)), f"{d:.6g}", f"{c.diameter * 1e3:.6g}", str(c.flutes),
@@ -178,8 +182,14 @@ def track(
                                                        "[um] for every calibration.")] = None,
     runout_phase_deg: Annotated[float, typer.Option(help="Direction of the runout from flute 1 [deg].")] = 0.0,
     helix_deg: Annotated[float, typer.Option(help="Helix angle of the tool [deg] (with --runout-um).")] = 30.0,
+    interval: Annotated[Optional[float], typer.Option(help="Your fixed calibration interval [m of cutting]; "
+                                                           "default: the session's median spacing.")] = None,
+    cut_length: Annotated[Optional[float], typer.Option(help="Cutting distance per cut (part, pass) [mm], to "
+                                                             "count the next calibration in cuts; default: the "
+                                                             "session's metadata.")] = None,
 ) -> None:
-    """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm."""
+    """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm, and
+    when to calibrate next (sooner when the wear speeds up or jumps)."""
     from drivesense.monitor.wear import WearTracker, track_wear
 
     table = _read(session, diameter, flutes, mode)
@@ -206,6 +216,7 @@ def track(
         console.print(f"no end-of-life alarm; state {report.state}", highlight=False, markup=False)
     console.print(f"dominant mode: {report.mode} — {report.states[-1].evidence}", highlight=False, markup=False)
     info = report.to_dict()
+    info["next_calibration"] = _next_calibration(session, report, interval, cut_length)
     info["table"] = str(session)
     info["settings"] = WearTracker().settings.__dict__
     if plot:
@@ -215,6 +226,46 @@ def track(
         info["plot"] = str(plot)
         console.print(f"wrote {plot}", markup=False)
     write_json(json_path, info)
+
+
+def _next_calibration(session: Path, report, interval: Optional[float], cut_length_mm: Optional[float]) -> dict:
+    """Print and return the adaptive cadence's proposal for the next calibration."""
+    import json
+
+    import numpy as np
+
+    from drivesense.errors import ConfigError
+    from drivesense.io.csv import sidecar_path
+    from drivesense.monitor.cadence import propose_from_states
+
+    about = {}
+    side = sidecar_path(session)
+    if side.is_file():
+        try:
+            about = json.loads(side.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            about = {}
+    for name, value in (("--interval", interval), ("--cut-length", cut_length_mm)):
+        if value is not None and (not math.isfinite(value) or value <= 0):
+            raise ConfigError(f"{name} must be > 0, got {value!r}")
+    spacing = np.diff([s.distance for s in report.states])
+    base = interval or about.get("calibration_interval_m") or (float(np.median(spacing)) if spacing.size else None)
+    if not base or base <= 0:
+        console.print("next calibration: give --interval (your calibration interval in m of cutting); the session "
+                      "has one calibration or no distances", highlight=False, markup=False)
+        return {"interval_m": None, "reason": "no fixed interval known (--interval)"}
+    proposal = propose_from_states(report.states, float(base))
+    length = cut_length_mm * 1e-3 if cut_length_mm is not None else about.get("cut_length_m")
+    out = {"interval_m": proposal.interval, "factor_of_fixed_interval": proposal.factor, "fixed_interval_m": base,
+           "reason": proposal.reason, "cut_length_m": length, "cuts": None}
+    if length:
+        out["cuts"] = proposal.cuts(float(length))
+        when = f"after {out['cuts']} cut(s) ({out['cuts'] * length:.3g} m of cutting)"
+    else:
+        when = f"after {proposal.interval:.3g} m of cutting (give --cut-length to count it in cuts)"
+    console.print(f"next calibration {when}: {proposal.factor:.2g}x your interval of {base:.3g} m — "
+                  f"{proposal.reason}", highlight=False, markup=False)
+    return out
 
 
 def register(root: typer.Typer) -> None:

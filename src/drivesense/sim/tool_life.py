@@ -18,9 +18,11 @@ Physics and what is assumed (the paper gives the conditions but neither tool liv
   aluminium 0.35x), **K_tc = K_tc0 (1 + c_e (VB / VB_acc)^q) (1 + alpha_c D_c)**: the same thermal
   softening that accelerates wear raises the shearing energy near the end of life, and a chipped
   edge (depth D_c) cuts with a blunter, more negative effective rake.
-* **Chipping** is a Poisson process whose rate grows with the chip load (``(h_max / h_ref)^2``), with
-  the damage already done (``(1 + D_c / d_0)^2``, a weakened edge) and, for HSS, with cutting speed
-  (thermal softening, ``(V / 60 m/min)^4``). A chip of depth s (log-normal) adds s to D_c and grinds
+* **Chipping** is a Poisson process (drawn as exponential thresholds of the integrated rate, from a
+  random stream of its own, so a tool chips at the same points of its cutting history whatever the
+  measurement noise or the calibration cadence) whose rate grows with the chip load
+  (``(h_max / h_ref)^2``), with the damage already done (``(1 + D_c / d_0)^2``, a weakened edge)
+  and, for HSS, with cutting speed (thermal softening, ``(V / 60 m/min)^4``). A chip of depth s (log-normal) adds s to D_c and grinds
   away a fraction of the flank land (less rubbing: K_te falls). Carbide: about 4 chips (median depth
   40 um) per nominal life at the reference load; HSS, tougher: 0.15 (20 um) at 60 m/min, so that
   the 3666 rpm experiment H shows "some chipping along with flank wear" as the paper reports.
@@ -51,7 +53,7 @@ from drivesense.machine.cutting_power import CutTable
 from drivesense.machine.cutting_power import CutConditions
 from drivesense.machine.milling import CuttingCoefficients, milling_forces
 
-__all__ = ["WearExperiment", "ToolLife", "table1_experiments", "section4_calibration", "simulate_tool_life",
+__all__ = ["PASS_LENGTH", "WearExperiment", "ToolLife", "table1_experiments", "section4_calibration", "simulate_tool_life",
            "simulate_calibration", "power_trace"]
 
 _RPM = 2 * math.pi / 60
@@ -59,6 +61,9 @@ _DEG = math.pi / 180
 VB_LIMIT = 0.3e-3       # m, uniform flank wear criterion
 CHIP_LIMIT = 0.5e-3     # m, localised damage criterion
 CUT_SECONDS = 10.0      # s of steady cutting per calibration cut
+#: Cut distance of one wear cut [m]: a pass along the paper's 6-inch bar (assumed; experiment B calibrates after
+#: every pass, G and H after 4, C and D after 22).
+PASS_LENGTH = 0.1524
 AIR_SECONDS = 2.0       # s of air cut before each calibration cut
 FS_POWER = 100.0        # Hz, power sensor sampling
 _CAL_FEEDS = (0.5, 0.75, 1.0, 1.25)
@@ -270,6 +275,10 @@ class _Tool:
         self.ref_v, self.ref_h = ref.cutting_speed, ref.average_chip_thickness
         self.k_ref = np.interp(VB_LIMIT, self.grid, self.G) / self.life
         self.chip_rate_ref = mat["chips"] / (exp.nominal_calibrations * cycle)
+        # chipping draws from a stream of its own, as a Poisson process in integrated hazard: the same tool
+        # chips at the same points of its cutting history however the measurements or the cadence go
+        self.chip_rng = np.random.default_rng(rng.integers(2 ** 63))
+        self.hazard_left = self.chip_rng.exponential()
         self.cache: dict = {}
 
     def _cycle_seconds(self) -> float:
@@ -306,11 +315,13 @@ class _Tool:
         for i in range(steps):
             g = np.interp(self.vb, self.grid, self.G) + k * dt
             self.vb = float(np.interp(g, self.G, self.grid))
-            if self.rng.random() < 1.0 - math.exp(-self.chip_rate(cut) * dt):
-                s = self.rng.lognormal(math.log(self.mat["chip_size"]), 0.5)
+            self.hazard_left -= self.chip_rate(cut) * dt
+            if self.hazard_left <= 0.0:
+                s = self.chip_rng.lognormal(math.log(self.mat["chip_size"]), 0.5)
                 self.chip += s
-                self.vb *= 1.0 - self.rng.uniform(0.2, 0.5) * min(1.0, s / 0.05e-3)
+                self.vb *= 1.0 - self.chip_rng.uniform(0.2, 0.5) * min(1.0, s / 0.05e-3)
                 events.append((clock + (i + 1) * dt * cut.feed_speed, s))
+                self.hazard_left = self.chip_rng.exponential()
 
     @property
     def failed(self) -> bool:
@@ -394,7 +405,8 @@ def _experiment(experiment) -> WearExperiment:
     return known[experiment.upper()]
 
 
-def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_calibrations: int = 200) -> ToolLife:
+def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_calibrations: int = 200,
+                       cadence=None) -> ToolLife:
     """Simulate one tool of an experiment from new to its life criterion.
 
     Parameters
@@ -405,6 +417,12 @@ def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_c
         Random seed (tool make-up, chipping, noise).
     max_calibrations : int
         Safety stop.
+    cadence : callable, optional
+        ``cadence(table, distance) -> interval``: after each calibration, given its cuts with the
+        measured cutting power (a :class:`~drivesense.machine.cutting_power.CutTable`) and its cut
+        distance [m], the wear-cut distance to the next calibration [m] (e.g.
+        :class:`drivesense.monitor.cadence.AdaptiveCadence`). Default: the experiment's fixed
+        ``calibration_interval``. Continuous experiments calibrate on every sweep whatever it says.
 
     Returns
     -------
@@ -416,12 +434,12 @@ def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_c
     prev_threads = numba.get_num_threads()
     numba.set_num_threads(1)                     # one revolution per call: threads cost more than they give
     try:
-        return _run(exp, seed, tool, rng, max_calibrations)
+        return _run(exp, seed, tool, rng, max_calibrations, cadence)
     finally:
         numba.set_num_threads(prev_threads)
 
 
-def _run(exp, seed, tool, rng, max_calibrations) -> ToolLife:
+def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
     cal_cuts = exp.calibration_cuts()
     wear_cut = exp.wear_cut()
     clock, minutes = 0.0, 0.0
@@ -456,7 +474,15 @@ def _run(exp, seed, tool, rng, max_calibrations) -> ToolLife:
         _append(rows, k, cuts, sp, ap, cal_no, dist)
         if exp.continuous:
             continue
-        seconds = exp.calibration_interval / wear_cut.feed_speed
+        interval = exp.calibration_interval
+        if cadence is not None:
+            done = CutTable(tuple(r[0] for r in rows), np.array([r[1] - r[2] for r in rows]),
+                            name=f"experiment {exp.name}, seed {seed}, calibration {k}")
+            interval = float(cadence(done, float(np.mean([r[3] for r in rows]))))
+            if not math.isfinite(interval) or interval <= 0:
+                raise ConfigError(f"the cadence proposed an interval of {interval!r} m after calibration {k}; "
+                                  "it must be > 0")
+        seconds = interval / wear_cut.feed_speed
         steps = max(1, int(math.ceil(seconds / 30.0)))
         for _ in range(steps):
             tool.advance(wear_cut, seconds / steps, True, clock, events)
