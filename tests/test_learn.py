@@ -29,7 +29,7 @@ TINY = TrainConfig(epochs=3, windows_per_epoch=128, batch=32, window=150, burn_i
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("ds")
-    runs = plan_runs(n_train=4, n_val=2, n_test=1, n_held_out_process=1, n_air=1, seed=7)
+    runs = plan_runs(n_train=4, n_val=2, n_test=1, n_held_out_process=1, n_air=1, seed=7, extra_pockets=())
     index = build_dataset(folder, runs)
     return folder, index, [rec for _, rec in load_dataset(folder)]
 
@@ -47,6 +47,19 @@ def test_plan_respects_the_rule_and_the_split():
     air = [r for r in runs if r.air]
     assert len(air) == 34 and {r.split for r in air} == {"train"}
     assert {r.process for r in air}.isdisjoint(held) and len({r.name for r in runs}) == len(runs)
+
+
+def test_plan_holds_clockwise_and_other_radius_pockets_out_of_training():
+    runs = plan_runs()
+    pockets = [r for r in runs if r.process.startswith("pocket") and r.split == "test"]
+    assert {(r.process, r.pocket_radius) for r in pockets} == {("pocket_ccw", None), ("pocket_cw", 0.015),
+                                                              ("pocket_ccw", 0.010), ("pocket_cw", 0.022)}
+    fitted = {(r.a_p, r.a_e, r.v_f, r.n) for r in runs if r.split in ("train", "val")}
+    assert all((r.a_p, r.a_e, r.v_f, r.n) not in fitted for r in pockets)
+    assert len({(r.a_p, r.a_e, r.v_f, r.n) for r in pockets}) == len(pockets)
+    assert {r.split for r in runs if r.process == "pocket_cw"} == {"test"}     # never trained on
+    assert runs[:len(plan_runs(extra_pockets=()))] == plan_runs(extra_pockets=())   # the rest is unchanged
+    assert "pocket_ccw_ap3_ae1_vf400_n6000_r10_s2250" in {r.name for r in runs}
 
 
 def test_air_cuts_have_zero_force_and_the_cut_toolpath():
@@ -199,3 +212,30 @@ def test_learn_bench_scoring_on_held_out_runs(trained, tiny):
             for run, vals in (("a", (1.0, 2.0, 3.0)), ("b", (3.0, 2.0, 1.0))) for ax in "xy"
             for m, v in zip(("hybrid", "lstm", "model"), vals)]
     assert _hybrid_wins(rows, "test") == [True, False] and _hybrid_wins(rows, "test_process") == []
+
+
+def test_learn_bench_figures_per_seed_and_their_spread():
+    """seed_figures reads the pockets (every pocket process of the test split) and the ratios; spread summarises seeds."""
+    from drivesense.bench.learn import TARGETS, _targets, seed_figures, spread
+
+    rmse = {"model": 4.0, "model_paper": 8.0, "lstm": 3.0, "hybrid": 2.0}
+    rows = [{"split": split, "axis": ax, "run": f"{proc}_{split}", "process": proc, "method": m,
+             "rmse_n": v * (1.5 if proc.startswith("pocket") else 1.0)}
+            for split, proc in (("test", "groove_+x"), ("test", "pocket_ccw"), ("test", "pocket_cw"),
+                                ("test_process", "side_-x+y"))
+            for ax in "xyz" for m, v in rmse.items()]
+    f = seed_figures(rows)
+    assert f["median_rmse"]["hybrid"] == pytest.approx(2.0 * 1.5)           # 4 pocket values of 6: median 3
+    assert f["pocket_rmse"]["model"] == pytest.approx(6.0) and f["hybrid_over_model_pocket"] == pytest.approx(0.5)
+    assert f["lstm_over_paper_model_pocket"] == pytest.approx(3.0 / 8.0)
+    assert f["hybrid_best_fraction"] == 1.0 and f["hybrid_best_fraction_held_out_process"] == 1.0
+    s = spread([1.0, 2.0, None, 3.0])
+    assert s["mean"] == 2.0 and s["std"] == pytest.approx(1.0) and (s["min"], s["max"]) == (1.0, 3.0)
+    assert s["per_seed"] == [1.0, 2.0, None, 3.0] and spread([None]) is None and spread([5.0])["std"] == 0.0
+    summary = {k: spread([f[k]] * 3) for k in f if not isinstance(f[k], dict)}
+    summary.update({"coverage_90": spread([0.9] * 3), "train_minutes_lstm_plus_hybrid": spread([20.0] * 3),
+                    "infer_realtime_factor": spread([2000.0] * 3), "train_peak_mb": spread([300.0] * 3)})
+    t = _targets(summary)
+    assert set(t) == set(TARGETS)
+    assert t["hybrid_over_model_pocket"]["met"] and not t["train_minutes_lstm_plus_hybrid"]["met"]
+    assert t["coverage_90"]["met"] and t["hybrid_over_model_pocket"]["spread"]["std"] == 0.0

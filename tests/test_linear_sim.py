@@ -18,7 +18,7 @@ def traces():
 
 
 def test_every_process_gives_the_nc_trace_with_the_true_force(traces):
-    assert len(traces) == 18
+    assert len(traces) == 19
     for name, rec in traces.items():
         assert rec.fs == 250.0
         assert set(NC + ["spindle_speed", "spindle_current", "force_x", "force_y", "force_z"]) <= set(rec.channels)
@@ -35,7 +35,7 @@ def test_every_process_gives_the_nc_trace_with_the_true_force(traces):
 def test_paths_move_the_right_axes_with_reversals_and_accelerations(traces):
     moves = {name: rec.meta["moving_axes"] for name, rec in traces.items()}
     assert moves["groove_+x"] == ["x"] and moves["side_-y"] == ["y"] and moves["groove_+x-y"] == ["x", "y"]
-    assert moves["ramp_-y+z"] == ["y", "z"] and moves["pocket_ccw"] == ["x", "y", "z"]
+    assert moves["ramp_-y+z"] == ["y", "z"] and moves["pocket_ccw"] == moves["pocket_cw"] == ["x", "y", "z"]
     ramp = traces["ramp_-y+z"]
     assert ramp["y_position"][-1] < ramp["y_position"][0] and ramp["z_position"][-1] > ramp["z_position"][0]
     pocket = traces["pocket_ccw"]
@@ -97,3 +97,26 @@ def test_air_moves_and_config():
         LinearServoConfig(fs=4000.0, nc_rate=300.0)
     with pytest.raises(ConfigError, match="unknown axis 'w'"):
         simulate_air_moves(axes=("w",))
+
+
+@pytest.mark.parametrize("radius", [0.010, 0.022])
+def test_pockets_turn_both_ways_at_their_radius_climb_and_up_milling(traces, radius):
+    """The lap has the pocket's radius and its sense; the material is outside the lap: pushed outward, and
+    along the feed by up milling (clockwise), against it by climb milling (counter-clockwise)."""
+    from drivesense.sim.machining import ProcessSettings
+
+    for name, turn in (("pocket_ccw", 1), ("pocket_cw", -1)):
+        rec = simulate_process(name, 2e-3, 2e-3, 500 / 60e3, 3500, seed=3, settings=ProcessSettings(pocket_radius=radius))
+        start, end = rec.meta["score_window"]
+        sel = (rec.time > start + 1.0) & (rec.time < end - 0.5)
+        x, y = rec["x_position"][sel], rec["y_position"][sel]
+        cx, cy = 0.5 * (x.max() + x.min()), 0.5 * (y.max() + y.min())
+        assert np.median(np.hypot(x - cx, y - cy)) == pytest.approx(radius, rel=0.01)
+        th = np.unwrap(np.arctan2(y - cy, x - cx))
+        assert turn * (th[-1] - th[0]) > 5.0                               # most of a lap, in its sense
+        fx, fy = rec["force_x"][sel], rec["force_y"][sel]
+        radial = np.mean(fx * np.cos(th) + fy * np.sin(th))
+        along_feed = np.mean(turn * (-fx * np.sin(th) + fy * np.cos(th)))
+        assert radial > 5.0, name
+        assert (along_feed > 20.0) if turn < 0 else (along_feed < -5.0), name
+        assert rec.meta["pocket_radius_m"] == radius and rec.meta["name"].endswith(f"_r{radius * 1e3:g}")

@@ -110,7 +110,8 @@ def simulate(
         raise ConfigError("give a SCENARIO and --out FILE (or --list)")
     if params is not None and not is_process(scenario):
         raise ConfigError(f"{', '.join(k for k, v in given.items() if v is not None)}: cutting parameters of the "
-                          f"linear machine's processes (groove_*, side_*, pocket_ccw, ramp_-y+z), not of {scenario!r}")
+                          "linear machine's processes (groove_*, side_*, pocket_ccw, pocket_cw, ramp_-y+z), "
+                          f"not of {scenario!r}")
     if scenario == AIR_MOVES and out.suffix.lower() in (".nc", ".csv"):
         raise ConfigError(f"{AIR_MOVES} writes 9 recordings: give --out a folder (one .nc file per move), "
                           f"not '{out}'")

@@ -38,6 +38,7 @@ from drivesense.io.netcdf import load_netcdf, save_netcdf
 from drivesense.recording import Recording
 
 __all__ = ["RunSpec", "allowed", "plan_runs", "build_dataset", "load_dataset", "load_folder", "HELD_OUT_PROCESS",
+           "TEST_ONLY_PROCESSES", "EXTRA_TEST_POCKETS",
            "simulator_fingerprint", "run_key", "SIMULATOR_PACKAGES"]
 
 #: Packages whose source (every ``.py`` file next to their ``__init__``) keys the dataset cache.
@@ -45,6 +46,10 @@ SIMULATOR_PACKAGES = ("drivesense.machine", "drivesense.sim")
 
 #: Process type never shown to the networks during training.
 HELD_OUT_PROCESS = "side_-x+y"
+#: Process types drawn only for held-out pockets, never for training (the clockwise, up-milling pocket).
+TEST_ONLY_PROCESSES = ("pocket_cw",)
+#: Held-out pockets beyond the grid's counter-clockwise one: (process, radius [m]).
+EXTRA_TEST_POCKETS = (("pocket_cw", 0.015), ("pocket_ccw", 0.010), ("pocket_cw", 0.022))
 
 
 @dataclass(frozen=True)
@@ -69,6 +74,9 @@ class RunSpec:
     air : bool
         An air cut of the process (zero force; see
         :func:`drivesense.sim.machining.simulate_process`).
+    pocket_radius : float, optional
+        A pocket's tool-centre radius [m] (default that of
+        :class:`~drivesense.sim.machining.ProcessSettings`).
     """
 
     process: str
@@ -79,12 +87,15 @@ class RunSpec:
     seed: int
     split: str
     air: bool = False
+    pocket_radius: float | None = None
 
     @property
     def name(self) -> str:
         """File-friendly identifier."""
-        return (f"{'air_' if self.air else ''}{self.process}_ap{self.a_p * 1e3:g}_ae{self.a_e * 1e3:g}"
-                f"_vf{self.v_f * 60e3:g}_n{self.n:g}_s{self.seed}")
+        from drivesense.sim.machining import process_run_name
+
+        return process_run_name(self.process, self.a_p, self.a_e, self.v_f, self.n, air=self.air,
+                                pocket_radius=self.pocket_radius) + f"_s{self.seed}"
 
 
 def allowed(process: str, a_p: float, a_e: float) -> bool:
@@ -109,7 +120,7 @@ def allowed(process: str, a_p: float, a_e: float) -> bool:
 
 
 def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_process: int = 8,
-              n_air: int = 34, seed: int = 2021) -> list[RunSpec]:
+              n_air: int = 34, seed: int = 2021, extra_pockets=EXTRA_TEST_POCKETS) -> list[RunSpec]:
     """Draw the runs: parameter combinations from the grid, process types in turn.
 
     Parameters
@@ -123,6 +134,10 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
         parameter combinations; never the held-out process type).
     seed : int
         Seed of the draw (and base of the simulation seeds).
+    extra_pockets : sequence of (str, float)
+        Further held-out pockets (process, radius [m]) in the test split, at
+        parameter combinations that no training or validation run uses; drawn
+        after every other run, so they change none of them.
 
     Returns
     -------
@@ -131,7 +146,7 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
     from drivesense.sim.machining import process_names, table1_process_grid
 
     grid = table1_process_grid()
-    processes = [p for p in process_names() if p != HELD_OUT_PROCESS]
+    processes = [p for p in process_names() if p != HELD_OUT_PROCESS and p not in TEST_ONLY_PROCESSES]
     combos = list(itertools.product(grid["a_p"], grid["a_e"], grid["v_f"], grid["n"]))
     rng = np.random.default_rng(seed)
     rng.shuffle(combos)
@@ -175,6 +190,11 @@ def plan_runs(n_train: int = 150, n_val: int = 15, n_test: int = 21, n_held_out_
         else:
             raise ConfigError(f"no training combination suits an air cut of {process!r}; add training runs")
         runs.append(RunSpec(process, r.a_p, r.a_e, r.v_f, r.n, seed + len(runs), "train", air=True))
+    fitted = {(r.a_p, r.a_e, r.v_f, r.n) for r in runs if r.split in ("train", "val")}
+    spare = (c for c in reversed(combos) if c not in fitted and c not in used_test)
+    for process, radius in extra_pockets:
+        a_p, a_e, v_f, n = next(c for c in spare if allowed(process, c[0], c[1]))
+        runs.append(RunSpec(process, a_p, a_e, v_f, n, seed + len(runs), "test", pocket_radius=radius))
     return runs
 
 
@@ -247,13 +267,14 @@ def build_dataset(out_dir, runs: Sequence[RunSpec] | None = None, *,
         The index: runs with their split, file and cache key (:func:`run_key`),
         the simulator fingerprint, ``bytes_on_disk``.
     """
-    from drivesense.sim.machining import simulate_process
+    from drivesense.sim.machining import ProcessSettings, simulate_process
 
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     runs = list(runs) if runs is not None else plan_runs()
-    simulate = simulate or (lambda s: simulate_process(s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed,
-                                                       air=s.air))
+    simulate = simulate or (lambda s: simulate_process(
+        s.process, s.a_p, s.a_e, s.v_f, s.n, seed=s.seed, air=s.air,
+        settings=None if s.pocket_radius is None else ProcessSettings(pocket_radius=s.pocket_radius)))
     index_path = out / "index.json"
     fingerprint = simulator_fingerprint()
     old = {}

@@ -151,8 +151,8 @@ def propose_interval(distance, signals: dict, base: float,
     distance : array_like
         Cut distance at each calibration so far [m], non-decreasing.
     signals : dict of str to (array_like, array_like)
-        Name -> (values, standard errors) at those calibrations, in any unit (each signal is
-        scaled by its first value, which must be > 0).
+        Name -> (values, standard errors) at those calibrations [any unit, the same for both]; each
+        signal is scaled by its first value, which must be > 0.
     base : float
         The fixed cadence's interval [m], > 0.
     settings : CadenceSettings, optional

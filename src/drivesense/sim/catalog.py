@@ -75,7 +75,9 @@ def _process_line(name: str) -> str:
     if kind in _PROCESS_KINDS:
         what = _PROCESS_KINDS[kind].format(d=direction)
     elif name == "pocket_ccw":
-        what = "circular pocket, counter-clockwise"
+        what = "circular pocket, counter-clockwise (climb milling)"
+    elif name == "pocket_cw":
+        what = "circular pocket, clockwise (up milling)"
     else:
         what = "ramp along -y rising in +z"
     return f"linear machine: {what}, for estimate --method model|lstm|hybrid"

@@ -2,8 +2,10 @@
 
 Processes (:func:`process_names`): grooves (slots, ``a_e = D``) and side
 milling (up milling, material on the left of the feed) in +-x, +-y and the
-four diagonals at constant feed; a circular pocket (ccw, plunge entry, then
-one lap at radial engagement ``a_e``: X and Y reverse continuously); a ramp
+four diagonals at constant feed; a circular pocket, counter-clockwise (climb
+milling) or clockwise (up milling), each a plunge entry, then one lap at radial
+engagement ``a_e`` (X and Y reverse continuously; the radius is
+:attr:`ProcessSettings.pocket_radius`); a ramp
 (-y with +z, ``a_p`` growing from 0 to its value).  Every move starts and
 ends at rest, so each trace holds accelerations; the workpiece is fixed on
 the table and the axes carry the tool.
@@ -39,9 +41,11 @@ from drivesense.sim.cutting import plunge_load, straight_cut_forces, workpiece_f
 from drivesense.sim.linear_machine import LinearServoConfig, nc_trace, run_linear_machine
 from drivesense.sim.toolpath import ToolpathProgram
 
-__all__ = ["ProcessSettings", "process_names", "table1_process_grid", "simulate_process", "simulate_air_moves",
+__all__ = ["ProcessSettings", "process_names", "process_run_name", "POCKETS", "table1_process_grid", "simulate_process", "simulate_air_moves",
            "c45_coefficients"]
 
+#: Circular pockets: name -> (sense of the lap, +1 counter-clockwise; milling mode with a right-hand spindle).
+POCKETS = {"pocket_ccw": (1, "down"), "pocket_cw": (-1, "up")}
 _DIRS = {"+x": (1, 0), "-x": (-1, 0), "+y": (0, 1), "-y": (0, -1),
          "+x+y": (1, 1), "+x-y": (1, -1), "-x+y": (-1, 1), "-x-y": (-1, -1)}
 
@@ -133,9 +137,35 @@ def process_names() -> list[str]:
     -------
     list of str
         ``groove_{dir}`` and ``side_{dir}`` for dir in +x, -x, +y, -y, +x+y,
-        +x-y, -x+y, -x-y; ``pocket_ccw``; ``ramp_-y+z``.
+        +x-y, -x+y, -x-y; ``pocket_ccw``, ``pocket_cw``; ``ramp_-y+z``.
     """
-    return [f"groove_{d}" for d in _DIRS] + [f"side_{d}" for d in _DIRS] + ["pocket_ccw", "ramp_-y+z"]
+    return [f"groove_{d}" for d in _DIRS] + [f"side_{d}" for d in _DIRS] + list(POCKETS) + ["ramp_-y+z"]
+
+
+def process_run_name(process: str, a_p: float, a_e: float, v_f: float, n: float, *, air: bool = False,
+                     pocket_radius: float | None = None) -> str:
+    """File-friendly name of one run, in the units of the paper's Table 1.
+
+    Parameters
+    ----------
+    process, a_p, a_e, v_f, n
+        As for :func:`simulate_process`: process type, depths of cut [m], feed speed [m/s] and
+        spindle speed [min^-1] (named in mm, mm/min and min^-1).
+    air : bool
+        An air cut (``air_`` prefix).
+    pocket_radius : float, optional
+        A pocket's radius [m]; named (``_r{mm}``) only when it differs from the
+        default :attr:`ProcessSettings.pocket_radius`.
+
+    Returns
+    -------
+    str
+        e.g. ``"pocket_cw_ap2_ae2_vf500_n3500_r22"``.
+    """
+    name = f"{'air_' if air else ''}{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}"
+    if pocket_radius is not None and abs(pocket_radius - ProcessSettings.pocket_radius) > 1e-9:
+        name += f"_r{pocket_radius * 1e3:g}"
+    return name
 
 
 def table1_process_grid() -> dict[str, list[float]]:
@@ -184,7 +214,8 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         force = workpiece_force(fe, fn, fa, dx, dy)
         window = (t0 + settings.ramp_time + settings.settle, t_dec)
         return t, pos, vel, acc, force, tq, window
-    if name == "pocket_ccw":
+    if name in POCKETS:
+        turn, mode = POCKETS[name]
         r = settings.pocket_radius
         start = centre + np.array([r, 0.0, 0.003])
         prog = ToolpathProgram(start, fs)
@@ -192,7 +223,7 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         plunge_v = v_f / 3
         t_pl, _, t_pl_end = prog.line(np.array([0.0, 0.0, -(0.003 + a_p)]), plunge_v, settings.ramp_time)
         prog.dwell(0.2)
-        t_arc, t_arc_dec, _ = prog.arc(np.array([-r, 0.0, 0.0]), 2 * math.pi, v_f, settings.ramp_time)
+        t_arc, t_arc_dec, _ = prog.arc(np.array([-r, 0.0, 0.0]), turn * 2 * math.pi, v_f, settings.ramp_time)
         prog.dwell(0.2)
         prog.line(np.array([0.0, 0.0, 0.003 + a_p]), 3 * v_f, settings.ramp_time)
         t, pos, vel, acc = prog.build(0.3)
@@ -203,14 +234,15 @@ def _process(name: str, a_p: float, a_e: float, v_f: float, settings: ProcessSet
         c_z = 2 * math.pi * np.clip(-vel[2], 0.0, None) / (tool.flutes * np.maximum(omega, 1e-9))
         engaged = np.clip(depth / 0.3e-3, 0.0, 1.0) * (c_z > 0)
         thrust, torque_pl = plunge_load(tool, settings.coefficients, c_z, engaged)
-        # milling along the circle (tangent d = (-sin th, cos th)); engagement from the end of the plunge
+        # milling along the circle (tangent d = turn (-sin th, cos th)); engagement from the end of the plunge;
+        # the material lies outside the lap: right of the feed counter-clockwise (climb), left clockwise (up)
         in_arc = t >= t_arc
         th = np.arctan2(pos[1] - centre[1], pos[0] - centre[0])
-        dx, dy = -np.sin(th), np.cos(th)
+        dx, dy = -turn * np.sin(th), turn * np.cos(th)
         speed = np.hypot(vel[0], vel[1])
         omega_s = np.maximum(omega, 1e-9)
         c = 2 * math.pi * speed / (tool.flutes * omega_s)
-        mf = milling_forces(tool, settings.coefficients, MillingCut(a_e, a_p, "down", axial_slices=8), angle, c)
+        mf = milling_forces(tool, settings.coefficients, MillingCut(a_e, a_p, mode, axial_slices=8), angle, c)
         on = in_arc & (t < t_arc_dec + settings.ramp_time)
         force = workpiece_force(mf.feed * on, mf.normal * on, mf.axial * on, dx, dy)
         force[2] -= thrust
@@ -335,8 +367,9 @@ def simulate_process(process: str, a_p: float, a_e: float, v_f: float, n: float,
     moving = [a for i, a in enumerate(AXES) if np.ptp(pos[i]) > 1e-4]
     if process.startswith("groove_"):
         a_e = settings.tool.diameter          # a slot: full immersion whatever a_e was given
-    meta = {"name": f"{'air_' if air else ''}{process}_ap{a_p * 1e3:g}_ae{a_e * 1e3:g}_vf{v_f * 60e3:g}_n{n:g}",
-            "process": process, "kind": "air" if air else "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f,
+    radius = {"pocket_radius_m": settings.pocket_radius} if process in POCKETS else {}
+    meta = {"name": process_run_name(process, a_p, a_e, v_f, n, air=air, pocket_radius=radius.get("pocket_radius_m")),
+            "process": process, **radius, "kind": "air" if air else "cut", "a_p_m": a_p, "a_e_m": a_e, "v_f_m_s": v_f,
             "n_rpm": n, "seed": int(seed),
             "moving_axes": moving, "score_window": [float(window[0]), float(window[1])],
             "provenance": [f"drivesense.sim.machining {process} seed {seed}"]}
