@@ -134,8 +134,9 @@ def _oracle_bound(lives) -> dict:
     """What an alarm could reach if it knew the true flank wear VB and chip depth at every calibration.
 
     The best pair of thresholds (alarm at the first calibration with VB >= a or chip depth >= b; best:
-    the largest margin over the targets 0.95 and 0.85), chosen with hindsight on these very lives: an upper bound for any threshold tracker, which sees
-    only noisy coefficients. Chipping ends lives between calibrations, which no threshold foresees.
+    the largest margin over the targets 0.95 and 0.85), chosen with hindsight on these very lives: an
+    upper bound for any threshold tracker, which sees only noisy coefficients. Chipping ends lives
+    between calibrations, which no threshold foresees.
     """
     def score(a, b, modes=("flank", "chipping")):
         n = before = window = 0

@@ -190,8 +190,12 @@ def track(
 ) -> None:
     """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm, and
     when to calibrate next (sooner when the wear speeds up or jumps)."""
+    from drivesense.errors import ConfigError
     from drivesense.monitor.wear import WearTracker, track_wear
 
+    for name, value in (("--interval", interval), ("--cut-length", cut_length)):
+        if value is not None and (not math.isfinite(value) or value <= 0):
+            raise ConfigError(f"{name} must be > 0, got {value!r}")
     table = _read(session, diameter, flutes, mode)
     with progress_bar() as progress:
         task = progress.add_task("calibrations", total=len(table.groups()))
@@ -234,7 +238,6 @@ def _next_calibration(session: Path, report, interval: Optional[float], cut_leng
 
     import numpy as np
 
-    from drivesense.errors import ConfigError
     from drivesense.io.csv import sidecar_path
     from drivesense.monitor.cadence import propose_from_states
 
@@ -245,9 +248,6 @@ def _next_calibration(session: Path, report, interval: Optional[float], cut_leng
             about = json.loads(side.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             about = {}
-    for name, value in (("--interval", interval), ("--cut-length", cut_length_mm)):
-        if value is not None and (not math.isfinite(value) or value <= 0):
-            raise ConfigError(f"{name} must be > 0, got {value!r}")
     spacing = np.diff([s.distance for s in report.states])
     base = interval or about.get("calibration_interval_m") or (float(np.median(spacing)) if spacing.size else None)
     if not base or base <= 0:
@@ -263,6 +263,8 @@ def _next_calibration(session: Path, report, interval: Optional[float], cut_leng
         when = f"after {out['cuts']} cut(s) ({out['cuts'] * length:.3g} m of cutting)"
     else:
         when = f"after {proposal.interval:.3g} m of cutting (give --cut-length to count it in cuts)"
+    if report.alarm_index is not None:
+        when += " if the tool stays in (the alarm is raised: plan the tool change)"
     console.print(f"next calibration {when}: {proposal.factor:.2g}x your interval of {base:.3g} m — "
                   f"{proposal.reason}", highlight=False, markup=False)
     return out
