@@ -1,8 +1,11 @@
-"""Monitoring: tool wear from cutting coefficients, runout from once-per-revolution vibration."""
+"""Monitoring: tool wear from cutting coefficients, when to calibrate next, runout from once-per-revolution
+vibration."""
 
+from drivesense.monitor.cadence import AdaptiveCadence, CadenceProposal, CadenceSettings, propose_interval
 from drivesense.monitor.runout import RunoutEstimate, estimate_runout
 from drivesense.monitor.wear import (WearReport, WearState, WearTracker, WearTrackerSettings, percent_power_increase,
                                      track_wear)
 
 __all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "track_wear", "percent_power_increase",
+           "AdaptiveCadence", "CadenceSettings", "CadenceProposal", "propose_interval",
            "RunoutEstimate", "estimate_runout"]
