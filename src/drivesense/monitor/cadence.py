@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
+from drivesense.monitor.wear import check_settings
 
 __all__ = ["CadenceSettings", "CadenceProposal", "propose_interval", "propose_from_states", "AdaptiveCadence"]
 
@@ -64,16 +65,10 @@ class CadenceSettings:
     window: int = 3
 
     def __post_init__(self) -> None:
-        for name in ("step", "shortest", "longest", "z"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value <= 0:
-                raise ConfigError(f"cadence setting '{name}' must be a number > 0, got {value!r}")
+        check_settings(self, "cadence", ("step", "shortest", "longest", "z"), {"window": 2})
         if self.shortest > self.longest:
             raise ConfigError(f"cadence setting 'shortest' ({self.shortest:g}) must not exceed 'longest' "
                               f"({self.longest:g})")
-        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
-            raise ConfigError(f"cadence setting 'window' must be an integer >= 2, got {self.window!r}")
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,8 @@ import numpy as np
 from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.identify.coefficients import CutTable, TangentialFit, fit_cut_table
 
-__all__ = ["WearTrackerSettings", "WearState", "WearTracker", "WearReport", "track_wear", "percent_power_increase"]
+__all__ = ["check_settings", "WearTrackerSettings", "WearState", "WearTracker", "WearReport", "track_wear",
+           "percent_power_increase"]
 
 STATES = ("new", "progressing", "near end of life")
 
@@ -80,16 +81,39 @@ class WearTrackerSettings:
     excess: float = 0.15
 
     def __post_init__(self) -> None:
-        for name in ("z", "progressing_rise", "acceleration", "ktc_rise", "chip_ktc_rise", "chip_drop",
-                     "excess"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value <= 0:
-                raise ConfigError(f"wear tracker setting '{name}' must be a number > 0, got {value!r}")
-        for name, low in (("baseline", 1), ("window", 2), ("min_history", 3)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"wear tracker setting '{name}' must be an integer >= {low}, got {value!r}")
+        check_settings(self, "wear tracker", ("z", "progressing_rise", "acceleration", "ktc_rise", "chip_ktc_rise",
+                                              "chip_drop", "excess"),
+                       {"baseline": 1, "window": 2, "min_history": 3})
+
+
+def check_settings(settings, what: str, positive=(), integers=None) -> None:
+    """Refuse settings that are not finite numbers > 0, or integers below their least value.
+
+    Parameters
+    ----------
+    settings : object
+        The settings (a dataclass instance).
+    what : str
+        How the messages name them (e.g. ``"wear tracker"``).
+    positive : sequence of str
+        Attributes that must be finite numbers > 0 (not booleans).
+    integers : dict of str to int, optional
+        Attributes that must be integers, each with its least value.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first setting that is not valid.
+    """
+    for name in positive:
+        value = getattr(settings, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or value <= 0:
+            raise ConfigError(f"{what} setting '{name}' must be a number > 0, got {value!r}")
+    for name, low in (integers or {}).items():
+        value = getattr(settings, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{what} setting '{name}' must be an integer >= {low}, got {value!r}")
 
 
 @dataclass(frozen=True)
