@@ -370,6 +370,17 @@ def material_removal_rate(cut, feed_speed):
     return float(q) if q.ndim == 0 else q
 
 
+@njit(cache=True, inline="always")
+def edge_immersion(a_mod, sa, ca, off, cos_off, sin_off):  # pragma: no cover - numba
+    """Immersion angle [rad] of an edge point at offset ``off`` behind flute 0 (spindle angle ``a_mod`` in
+    [0, 2 pi), its sine ``sa`` and cosine ``ca``), and the sine and cosine of that immersion."""
+    two_pi = 2.0 * math.pi
+    phi = a_mod + off
+    while phi >= two_pi:
+        phi -= two_pi
+    return phi, sa * cos_off + ca * sin_off, ca * cos_off - sa * sin_off
+
+
 def _forces_loop(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
                  phi_st, phi_ex, half_d, k, dz, fx, fy, fz, tq):  # pragma: no cover - numba
     """Accumulate the slice forces of every flute into fx, fy, fz, tq (in place)."""
@@ -388,13 +399,9 @@ def _forces_loop(angle, c, fp, use_fp, off, cos_off, sin_off, radius, drad,
         st = 0.0
         for j in range(nf):
             for m in range(ns):
-                phi = a_mod + off[j, m]
-                while phi >= two_pi:
-                    phi -= two_pi
+                phi, s, co = edge_immersion(a_mod, sa, ca, off[j, m], cos_off[j, m], sin_off[j, m])
                 if phi < phi_st or phi > phi_ex:
                     continue
-                s = sa * cos_off[j, m] + ca * sin_off[j, m]
-                co = ca * cos_off[j, m] - sa * sin_off[j, m]
                 if use_fp and fp[i] + half_d * s < 0.0:
                     continue
                 h = ci * s + drad[j]
