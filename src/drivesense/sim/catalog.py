@@ -158,7 +158,7 @@ def is_vmc_program(name: str) -> bool:
 
 
 def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
-                      params: ProcessParameters | None = None) -> list[Recording]:
+                      params: ProcessParameters | None = None, events=()) -> list[Recording]:
     """Simulate a scenario of :func:`describe_scenarios` by name.
 
     Parameters
@@ -174,6 +174,9 @@ def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
         :class:`ProcessParameters`) or of a machining-centre program (default:
         the programs' own, :data:`drivesense.sim.nc_programs.DEFAULT_CUT`);
         refused for the other scenarios.
+    events : sequence of ProcessEvent, optional
+        Events injected into a ball-screw feed cut (:mod:`drivesense.sim.process_events`); refused for
+        the other scenarios.
 
     Returns
     -------
@@ -190,6 +193,10 @@ def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
                                           simulate_idle)
 
     known = describe_scenarios()
+    if events and name not in known:
+        raise ConfigError(f"unknown scenario {name!r}; known: {', '.join(known)}")
+    if events and (is_process(name) or is_vmc_program(name) or name == AIR_MOVES or name.startswith("frf_")):
+        raise ConfigError(f"events (--event) are simulated on the ball-screw feed cuts (feed_*), not on {name!r}")
     if name not in known:
         raise ConfigError(f"unknown scenario {name!r}; known: {', '.join(known)}")
     if params is not None and not (is_process(name) or is_vmc_program(name)):
@@ -211,4 +218,11 @@ def simulate_scenario(name: str, *, seed: int = 1, ideal: bool = False,
     if name.startswith("frf_"):
         return [simulate_frf_excitation(name[4:], settings, seed=seed)]
     cond, is_idle = condition_by_name(name)
+    if events:
+        if is_idle or cond.direction != "feed" or ideal:
+            raise ConfigError(f"events (--event) are simulated on the ball-screw feed cuts (feed_*), with the "
+                              f"full physics, not on {name!r}")
+        from drivesense.sim.process_events import simulate_event_cut
+
+        return [simulate_event_cut(cond, events=events, settings=settings, seed=seed)]
     return simulate_idle(cond, settings, repeats=1, seed=seed) if is_idle else [simulate_cut(cond, settings, seed=seed)]

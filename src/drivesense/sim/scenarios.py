@@ -24,6 +24,7 @@ linear-motor simulator has the same switch
 from __future__ import annotations
 
 import math
+from functools import partial
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -37,7 +38,7 @@ from drivesense.sim.encoders import LinearScale, RotaryEncoder
 from drivesense.sim.servo import ServoConfig, run_servo
 from drivesense.sim.toolpath import constant_feed, standstill
 
-__all__ = ["CutCondition", "ScenarioSettings", "paper_conditions", "simulate_cut", "simulate_idle",
+__all__ = ["CutCondition", "ScenarioSettings", "paper_conditions", "simulate_cut", "simulate_idle", "run_scenario",
            "simulate_frf_excitation", "scenario_names", "condition_by_name"]
 
 
@@ -218,12 +219,39 @@ def _process_forces(cond: CutCondition, settings: ScenarioSettings, times: np.nd
     return -mf.normal, mf.feed, -mf.axial
 
 
-def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: bool, label: str) -> Recording:
+def run_scenario(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: bool, label: str, *,
+                 overrides=(), forces=None, extra_meta=None) -> Recording:
+    """One simulated run of the stage (what :func:`simulate_cut` and :func:`simulate_idle` run).
+
+    Parameters
+    ----------
+    cond : CutCondition
+        The cutting condition.
+    settings : ScenarioSettings
+        Physics and signal chain.
+    seed : int
+        Seed of every random element.
+    cutting : bool
+        Whether the tool cuts (False: an idle run, zero force).
+    label : str
+        The trace's name.
+    overrides : sequence of (float, float)
+        Feed-rate override changes ``(time [s], factor [-])``.
+    forces : callable, optional
+        ``forces(t_fine, feed_axis, omega, phase0, t) -> (F_x, F_y, F_z)`` [N] on the plant's sub-step
+        grid, replacing the milling force model (e.g. with tool vibration and events).
+    extra_meta : dict, optional
+        Metadata added to the trace's.
+
+    Returns
+    -------
+    Recording
+    """
     rng = np.random.default_rng(seed)
     cfg = settings.servo
     fs = cfg.fs
     stage = settings.stage if settings.ideal else settings.stage.varied(rng, settings.run_spread)
-    feed_axis = constant_feed(settings.duration, fs, cond.feed_speed)
+    feed_axis = constant_feed(settings.duration, fs, cond.feed_speed, overrides=overrides)
     n = feed_axis.position.size
     t = np.arange(n) / fs
     if cond.direction == "feed":
@@ -240,7 +268,8 @@ def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: boo
     # the process force at every plant sub-step; the recorded truth is its value at the control instants
     t_fine = np.arange(n * cfg.substeps) / (fs * cfg.substeps)
     if cutting:
-        fine_x, fine_y, fine_z = _process_forces(cond, settings, t_fine, feed_axis, omega, phase0, t)
+        fine_x, fine_y, fine_z = (forces or partial(_process_forces, cond, settings))(t_fine, feed_axis, omega,
+                                                                                      phase0, t)
     else:
         fine_x = fine_y = fine_z = np.zeros(t_fine.size)
     forces_x, forces_y, forces_z = (np.ascontiguousarray(f[::cfg.substeps]) for f in (fine_x, fine_y, fine_z))
@@ -271,6 +300,7 @@ def _run(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: boo
         "tare_window": [cruise_start + settings.settle, settings.t_contact - 0.05],
         "true_signal": {"T_a": cfg.T_a, "T_b": cfg.T_b, "omega_cc": cfg.omega_cc},
         "provenance": [f"drivesense.sim {cond.name} ({'cut' if cutting else 'idle'}), seed {seed}"],
+        **(extra_meta or {}),
     }
     channels = {
         "x_current_ref": res.current_ref,
@@ -311,7 +341,7 @@ def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *
         ``force_x``, ``force_y``, ``force_z`` [N]; metadata include
         ``score_window`` and ``tare_window`` [s].
     """
-    return _run(cond, _settings(settings, ideal), seed, True, cond.name)
+    return run_scenario(cond, _settings(settings, ideal), seed, True, cond.name)
 
 
 def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, *, repeats: int = 3,
@@ -339,7 +369,7 @@ def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, 
     """
     settings = _settings(settings, ideal)
     # the name holds the run index and its seed: runs of one call, and of calls with other seeds, differ
-    return [_run(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}_seed{seed + k}") for k in range(repeats)]
+    return [run_scenario(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}_seed{seed + k}") for k in range(repeats)]
 
 
 def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings | None = None, *,

@@ -53,7 +53,7 @@ def _smooth_step(t: np.ndarray, t0: float, duration: float) -> tuple[np.ndarray,
 
 
 def constant_feed(duration: float, fs: float, speed: float, *, start: float = 0.0, t_start: float = 0.2,
-                  ramp: float = 0.1, t_stop: float | None = None) -> Trajectory:
+                  ramp: float = 0.1, t_stop: float | None = None, overrides=()) -> Trajectory:
     """Stand, ramp up to ``speed``, cruise, (optionally) ramp down.
 
     Parameters
@@ -72,16 +72,26 @@ def constant_feed(duration: float, fs: float, speed: float, *, start: float = 0.
         Duration of each raised-cosine velocity ramp [s].
     t_stop : float, optional
         Start of the deceleration ramp [s]; ``None`` cruises to the end.
+    overrides : sequence of (float, float)
+        Feed-rate override changes ``(time [s], factor [-])``, in time order:
+        from ``time`` on the velocity ramps (over ``ramp``) to ``factor *
+        speed``, as an operator turning the override knob.
     """
     t = np.arange(int(round(duration * fs))) / fs
     up, dup = _smooth_step(t, t_start, ramp)
     vel = speed * up
     acc = speed * dup
+    factor = 1.0
+    for t_change, new in overrides:
+        step, dstep = _smooth_step(t, t_change, ramp)
+        vel = vel + speed * (new - factor) * step
+        acc = acc + speed * (new - factor) * dstep
+        factor = new
     cruise_end = duration
     if t_stop is not None:
         down, ddown = _smooth_step(t, t_stop, ramp)
-        vel = vel - speed * down
-        acc = acc - speed * ddown
+        vel = vel - speed * factor * down
+        acc = acc - speed * factor * ddown
         cruise_end = t_stop
     # exact integral of the velocity (trapezoidal on a fine grid is enough at 10 kHz)
     pos = start + np.concatenate(([0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) / fs)))
