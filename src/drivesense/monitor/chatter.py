@@ -1,0 +1,390 @@
+"""Regenerative chatter: force content at frequencies that are not harmonics of the spindle rotation.
+
+A stable cut repeats every spindle revolution (runout included), so the
+double once-per-revolution comb ``e(t) = F(t) - 2 F(t - T_rev) + F(t - 2 T_rev)``
+(4-point Lagrange fractional delays) cancels all of its harmonics -- the
+tooth-pass frequency's and the spindle's -- and, to first order, a pattern
+that drifts slowly (an entry, wear).  Chatter vibrates at a frequency near a
+tool mode that is no such harmonic and passes the comb.  After a band-pass
+(``highpass_hz`` to ``highest_hz``) the detector compares the comb's RMS over
+``window_revs`` (less the noise floor it learnt in air) with the RMS of the
+repeating part ``(F(t) + F(t - T) + F(t - 2T)) / 3`` (the forced response)::
+
+    r = sqrt((ms(e_bp) - noise) / 6) / rms(forced)
+
+``r`` is about zero in a stable cut and about one for chatter as strong as the
+forced force.  A step of the force (a breakage, a feed change) passes the
+double comb for two revolutions only: a candidate needs ``r`` above the
+threshold for ``hold_revs`` revolutions, after ``settle_revs`` of cutting at a
+steady feed (``feed_speed``) and a forced level that moved by < 15 % over
+them.  It becomes an event when the last ~0.4 s of force hold a spectral line
+of its own between the spindle harmonics (``prominence`` times their median),
+found again at the same frequency ``recheck_s`` later (the line of a transient
+moves or goes); that line's frequency is the chatter frequency reported.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import scipy.signal
+from numba import njit
+
+from drivesense.errors import ConfigError, SignalTooShortError
+from drivesense.machine.milling import check_number
+from drivesense.monitor.detector import Detector, feed_steady, spindle_speed_of
+
+__all__ = ["ChatterDetector"]
+
+_TWO_PI = 2.0 * math.pi
+_FREQ_RING = 4096
+(_HEAD, _COUNT, _EE, _EF, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
+ _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3) = range(24)
+
+
+@njit(cache=True, nogil=True)
+def _delayed(ring, head, delay):  # pragma: no cover - numba
+    """The ring's value ``delay`` samples before ``head`` (4-point Lagrange: a linear interpolation would
+    leak the tooth-pass harmonics through the comb)."""
+    cap = ring.size
+    pos = head - delay
+    while pos < 0:
+        pos += cap
+    i0 = int(pos)
+    fr = pos - i0
+    jm = (i0 - 1) % cap
+    j0 = i0 % cap
+    j1 = (i0 + 1) % cap
+    j2 = (i0 + 2) % cap
+    return (-fr * (fr - 1.0) * (fr - 2.0) / 6.0 * ring[jm] + (fr + 1.0) * (fr - 1.0) * (fr - 2.0) / 2.0 * ring[j0]
+            - (fr + 1.0) * fr * (fr - 2.0) / 2.0 * ring[j1] + (fr + 1.0) * fr * (fr - 1.0) / 6.0 * ring[j2])
+
+
+@njit(cache=True, nogil=True)
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc, ring, fring,
+                  levels, stat, thr_out, cand):  # pragma: no cover - numba
+    n = force.size
+    cap = ring.size
+    nfr = fring.size
+    b0, b1, b2, a1, a2 = sos[0], sos[1], sos[2], sos[4], sos[5]
+    for i in range(n):
+        w = omega[i]
+        f = force[i]
+        head = int(sc[_HEAD])
+        ring[head] = f
+        sc[_HEAD] = (head + 1) % cap
+        if sc[_COUNT] < cap:
+            sc[_COUNT] += 1
+        stat[i] = np.nan
+        thr_out[i] = np.nan
+        if w <= 0.0:
+            sc[_ARMED] = 0.0
+            continue
+        delay = _TWO_PI / w * fs
+        # a spindle-speed change invalidates the comb for a revolution
+        if abs(w - sc[_W_REF]) > 0.01 * max(w, 1e-9):
+            sc[_W_REF] = w
+            sc[_ARMED] = 0.0
+            sc[_HOLD] = 0.0
+        if 2.0 * delay + 3 >= sc[_COUNT] or 2.0 * delay + 3 >= cap:
+            continue
+        past1 = _delayed(ring, head, delay)
+        past2 = _delayed(ring, head, 2.0 * delay)
+        # the double comb cancels every spindle harmonic and, to first order, a pattern that drifts
+        # slowly (an entry, wear, a feed ramp); chatter repeats at no revolution and passes
+        e = f - 2.0 * past1 + past2
+        per = (f + past1 + past2) / 3.0 - sc[_MF]        # the part that repeats: the forced response
+        # high-pass (one biquad, direct form II transposed)
+        y = b0 * e + sc[_Z0]
+        sc[_Z0] = b1 * e - a1 * y + sc[_Z1]
+        sc[_Z1] = b2 * e - a2 * y
+        u = y                               # and the low-pass (direct form II transposed)
+        y = lp[0] * u + sc[_Z2]
+        sc[_Z2] = lp[1] * u - lp[4] * y + sc[_Z3]
+        sc[_Z3] = lp[2] * u - lp[5] * y
+        fh = int(sc[_FHEAD])
+        fring[fh] = y
+        sc[_FHEAD] = (fh + 1) % nfr
+        a = 1.0 / (window_revs * delay)
+        sc[_MF] += a * (f - sc[_MF])
+        sc[_EF] += a * ((f - sc[_MF]) ** 2 - sc[_EF])
+        # the comb's mean square over exactly window_revs (a moving window: a step of the force leaves
+        # it as soon as the double comb has passed it, two revolutions on)
+        length = max(1, int(window_revs * delay))
+        if length != int(sc[_LEN]) or length >= nfr:
+            sc[_LEN] = min(length, nfr - 1)
+            sc[_SUM] = 0.0
+            for k in range(int(sc[_LEN])):
+                v = fring[(fh - k) % nfr]
+                sc[_SUM] += v * v
+        else:
+            old = fring[(fh - length) % nfr]
+            sc[_SUM] += y * y - old * old
+        sc[_EE] = max(sc[_SUM], 0.0) / sc[_LEN]
+        sc[_EP] += a * (per * per - sc[_EP])
+        sc[_ARMED] += 1.0
+        if sc[_ARMED] < 2.0 * delay or sc[_EP] <= 0.0:
+            continue
+        rf = math.sqrt(sc[_EP])
+        if rf < gate:
+            # not cutting: learn the comb's noise floor (the estimate's own noise), to subtract it in the cut
+            sc[_AIRFOR] += 1.0
+            if sc[_AIRFOR] > settle_revs * delay:      # well away from a cut's start or end
+                sc[_EN] += 0.1 * a * (sc[_EE] - sc[_EN])
+            sc[_HOLD] = 0.0
+            sc[_LATCH] = 0.0
+            sc[_CUTFOR] = 0.0
+            continue
+        sc[_AIRFOR] = 0.0
+        r = math.sqrt(max(sc[_EE] - sc[_EN], 0.0) / 6.0) / rf
+        stat[i] = r
+        thr_out[i] = threshold
+        # the tool must have cut for settle_revs at a steady feed (the first revolutions of an entry and a
+        # feed-override ramp change the pattern itself)
+        sc[_CUTFOR] += 1.0
+        if feed_ok[i] < 0.5:
+            sc[_CUTFOR] = 0.0
+        # the forced level, once per revolution: a level that fell by > 15 % (or rose by > 60 %) over
+        # settle_revs (an exit, an abrupt change of engagement) is no steady cut to judge
+        sc[_REVPH] += w / fs
+        if sc[_REVPH] >= _TWO_PI:
+            sc[_REVPH] -= _TWO_PI
+            k = int(sc[_LHEAD]) % levels.size       # _LHEAD counts revolutions; the ring wraps
+            levels[k] = rf
+            sc[_LHEAD] += 1.0
+            old_k = (k - int(settle_revs) + levels.size) % levels.size
+            if sc[_LHEAD] > settle_revs and levels[old_k] > 0.0:
+                # a falling level is the tool leaving the part; a rising one is judged only when abrupt
+                # (an entry fills in steadily, and chatter often starts on the way in)
+                ratio = rf / levels[old_k]
+                sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else (ratio - 1.0) / 4.0
+        if sc[_LEVEL] > 0.15:
+            sc[_HOLD] = 0.0
+        if sc[_CUTFOR] < settle_revs * delay:
+            sc[_HOLD] = 0.0
+            continue
+        if r > threshold:
+            sc[_HOLD] += 1.0
+            sc[_QUIET] = 0.0
+        else:
+            sc[_HOLD] = 0.0
+            sc[_QUIET] += 1.0
+            if r < 0.5 * threshold and sc[_QUIET] > max(settle_revs * delay, fs):
+                sc[_LATCH] = 0.0          # re-armed only once the chatter has clearly gone
+        if sc[_HOLD] >= hold_revs * delay and sc[_LATCH] == 0.0:
+            # a candidate: the caller checks the spectrum and sets the latch (or the hold back to zero)
+            cand[0] = r
+            cand[1] = rf
+            cand[2] = w
+            return i + 1
+    return n
+
+
+def _spectral_check(ring: np.ndarray, head: int, fs: float, omega: float, lowest_hz: float, highest_hz: float,
+                    length: int, prominence: float, exclude=()) -> tuple[bool, float, float]:
+    """Is there a narrow peak between the spindle harmonics?  (ok, its frequency [Hz], its prominence [-]).
+
+    The last ``length`` force samples, Hann-windowed: the largest spectral line
+    above ``lowest_hz`` that lies more than three bins (and 10 % of the rotation
+    frequency) from every spindle harmonic, against the median of those lines.
+    A drifting pattern (an exit, a feed ramp) leaves sidebands next to the
+    harmonics; chatter is a line of its own.  Lines within 10 % of ``exclude``
+    (the feed drive's own modes, which ring in the estimate after a force
+    step) do not count.
+    """
+    cap = ring.size
+    x = ring[(head - length + np.arange(length)) % cap]
+    x = x - x.mean()
+    spec = np.abs(np.fft.rfft(x * np.hanning(length)))
+    freq = np.fft.rfftfreq(length, 1.0 / fs)
+    f_rev = omega / _TWO_PI
+    df = freq[1]
+    dist = np.abs(freq - f_rev * np.round(freq / f_rev))
+    keep = (freq >= lowest_hz) & (freq <= highest_hz) & (dist > max(3.0 * df, 0.1 * f_rev))
+    for f_mode in exclude:                     # the drive's own modes ring after any force step
+        keep &= np.abs(freq - f_mode) > 0.1 * f_mode
+    if np.count_nonzero(keep) < 8:
+        return False, 0.0, 0.0
+    lines = spec[keep]
+    k = int(np.argmax(lines))
+    floor = float(np.median(lines))
+    ratio = float(lines[k] / floor) if floor > 0 else np.inf
+    return ratio >= prominence, float(freq[keep][k]), ratio
+
+
+class ChatterDetector(Detector):
+    """Regenerative chatter from the force's content between the spindle harmonics.
+
+    Parameters
+    ----------
+    axis : str
+        Axis letter of the force channel.
+    spindle_rpm : float, optional
+        Fixed spindle speed [min^-1] when the stream has no ``spindle_speed`` channel.
+    threshold : float
+        Alarm level of ``r`` [-] (non-harmonic RMS over forced RMS).
+    hold_revs : float
+        How long ``r`` must stay above the threshold (> 2 so that a step of the force does not alarm)
+        [revolutions].
+    window_revs : float
+        Averaging time of the RMS values [revolutions].
+    highpass_hz : float
+        Corner of the high-pass on the comb output [Hz] (below the chatter band, above the estimator's
+        slow errors).
+    gate_n : float
+        Forced RMS [N] below which the tool is not cutting (no judgement).
+    min_rpm : float
+        Slowest spindle the delay line is sized for [min^-1].
+    settle_revs : float
+        Cutting at a steady feed before the detector judges (an entry, an override) [revolutions].
+    prominence : float
+        A candidate is confirmed when the largest spectral line between the spindle harmonics stands this
+        many times above their median (the last ~0.2 s of force) [-].
+    exclude_hz : sequence of float
+        The feed drive's own mode frequencies [Hz] (a line within 10 % of one is not chatter).
+    highest_hz : float, optional
+        Top of the chatter band [Hz]: set it below the estimator's low-pass, above which its force is
+        not to be trusted (default 0.45 fs).
+    recheck_s : float
+        The spectral line must be found again, at the same frequency, this much later [s].
+    """
+
+    name = "chatter"
+
+    def __init__(self, axis: str = "x", *, spindle_rpm: float | None = None, threshold: float = 0.05,
+                 hold_revs: float = 2.6, window_revs: float = 0.5, highpass_hz: float = 150.0, gate_n: float = 2.0,
+                 min_rpm: float = 500.0, settle_revs: float = 10.0, prominence: float = 8.0,
+                 exclude_hz=(), highest_hz: float | None = None, recheck_s: float = 0.05) -> None:
+        self._axis = str(axis)
+        self.spindle_rpm = None if spindle_rpm is None else check_number(spindle_rpm, "spindle_rpm", positive=True)
+        self.threshold = check_number(threshold, "threshold", positive=True)
+        self.hold_revs = check_number(hold_revs, "hold_revs", positive=True)
+        self.window_revs = check_number(window_revs, "window_revs", positive=True)
+        self.highpass_hz = check_number(highpass_hz, "highpass_hz", positive=True)
+        self.gate_n = check_number(gate_n, "gate_n", positive=True)
+        self.min_rpm = check_number(min_rpm, "min_rpm", positive=True)
+        self.settle_revs = check_number(settle_revs, "settle_revs", positive=True)
+        if not 1.0 <= self.settle_revs <= 60.0:
+            raise ConfigError(f"'settle_revs' must be within 1-60 revolutions, got {settle_revs!r}")
+        self.prominence = check_number(prominence, "prominence", positive=True)
+        self.recheck_s = check_number(recheck_s, "recheck_s", positive=True)
+        self.exclude_hz = tuple(check_number(f, "exclude_hz", positive=True) for f in exclude_hz)
+        self.highest_hz = None if highest_hz is None else check_number(highest_hz, "highest_hz", positive=True)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """``force_{axis}`` [N]."""
+        return (f"force_{self._axis}",)
+
+    def highest(self, fs: float) -> float:
+        """Top of the chatter band [Hz]: ``highest_hz`` or 0.45 fs.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        return min(self.highest_hz or 0.45 * fs, 0.45 * fs)
+
+    def spectrum_samples(self, fs: float) -> int:
+        """Samples of the confirming spectrum: the power of two at or above 0.4 s (the delay line holds it).
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        return int(2 ** int(math.ceil(math.log2(max(0.4 * fs, 64)))))
+
+    def latency_s(self, fs: float) -> float:
+        """The hold, the averaging window and the re-check at the slowest expected spindle speed [s].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        rpm = self.spindle_rpm or self.min_rpm
+        return (self.hold_revs + self.window_revs) * 60.0 / rpm + self.recheck_s
+
+    def new_state(self, fs: float) -> dict:
+        """Delay line of one revolution at ``min_rpm``, filter states, RMS values (constant size).
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        if self.highpass_hz >= 0.45 * fs:
+            raise SignalTooShortError(f"chatter detector: the high-pass corner {self.highpass_hz:g} Hz is too "
+                                      f"close to Nyquist at {fs:g} Hz (--highpass-hz)")
+        cap = max(2 * int(math.ceil(fs * 60.0 / self.min_rpm)) + 8, self.spectrum_samples(fs))
+        sos = scipy.signal.butter(2, self.highpass_hz, btype="high", fs=fs, output="sos")[0]
+        top = self.highest(fs)
+        if top <= 1.5 * self.highpass_hz:
+            raise ConfigError(f"chatter detector: the band {self.highpass_hz:g}-{top:g} Hz is empty "
+                              f"(--highpass-hz, --highest-hz)")
+        lp = scipy.signal.butter(2, top, btype="low", fs=fs, output="sos")[0]
+        return {"sc": np.zeros(24), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
+                "sos": np.ascontiguousarray(sos, dtype=float),
+                "lp": np.ascontiguousarray(lp, dtype=float), "fs": float(fs)}
+
+    def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
+        """Events, statistic r and threshold for the next samples (see the module docstring).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`new_state`; updated in place.
+        arrays : mapping of str to ndarray
+            The chunk's channels [SI unit of each channel: N, rad/s, m/s, m], equally long.
+        start : int
+            Index of the chunk's first sample since the stream began.
+        """
+        force = np.ascontiguousarray(arrays[self.channel_names[0]], dtype=float)
+        n = force.size
+        omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
+        feed_ok = feed_steady(arrays, state)
+        stat = np.empty(n)
+        thr = np.empty(n)
+        stat[:] = np.nan
+        thr[:] = np.nan
+        cand = np.zeros(3)
+        events = []
+        sc = state["sc"]
+        fs = state["fs"]
+        pos = 0
+        while pos < n:
+            done = pos + _chatter_loop(force[pos:], omega[pos:], fs, state["sos"], state["lp"], self.gate_n, self.threshold,
+                                       self.hold_revs, self.window_revs, self.settle_revs, feed_ok[pos:], sc,
+                                       state["ring"], state["fring"], state["levels"], stat[pos:], thr[pos:], cand)
+            if done < n or cand[0] > 0.0:
+                if cand[0] > 0.0:
+                    ok, freq, prom = _spectral_check(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
+                                                     self.highest(fs),
+                                                     self.spectrum_samples(fs), self.prominence,
+                                                     self.exclude_hz)
+                    here = start + done - 1
+                    pending = state.get("pending")
+                    df = fs / self.spectrum_samples(fs)
+                    if ok and pending is not None and here - pending[1] <= 4 * self.recheck_s * fs \
+                            and abs(freq - pending[0]) <= 3 * df:
+                        # the same line a moment later: chatter (a transient's line moves or goes)
+                        sc[_LATCH] = 1.0
+                        state["pending"] = None
+                        events.append((here, "chatter", min(1.0, 0.5 * cand[0] / self.threshold),
+                                       {"statistic": float(cand[0]), "threshold": self.threshold,
+                                        "chatter_frequency_hz": freq, "prominence": prom,
+                                        "forced_rms_n": float(cand[1])}))
+                    elif ok:
+                        state["pending"] = (freq, here)
+                        delay = _TWO_PI / cand[2] * fs
+                        sc[_HOLD] = max(self.hold_revs * delay - self.recheck_s * fs, 0.0)
+                    else:
+                        state["pending"] = None
+                        sc[_HOLD] = 0.0
+                    cand[:] = 0.0
+            pos = done
+        return events, stat, thr

@@ -1,0 +1,377 @@
+"""The contract every process-event detector follows (breakage, chatter, overload, teach-in limits, wear).
+
+::
+
+    det = ds.monitor.BreakageDetector(axis="x", teeth=2)
+    events = det.detect(forces)          # forces: a Recording with force_x [N] (and spindle_speed [rad/s])
+    stream = det.stream(fs)              # constant-size state, the same events as detect()
+    out = stream.push(chunk)             # Detection(events, statistic, threshold)
+
+A detector reads a force stream -- any estimator's output, or a dynamometer
+-- plus the spindle speed when it needs the spindle angle (a
+``spindle_speed`` channel [rad/s], or a fixed ``spindle_rpm`` given to it).
+Like the estimators (:mod:`drivesense.estimate.base`) a detector implements a
+fresh state and one ``process`` step; batch detection is one step from a fresh
+state, so batch and stream give the same events by construction.  Every event
+carries its kind, time, axis, confidence, evidence and the detection latency
+the detector declares (the estimator's latency adds to it: see
+:func:`attach_latency`).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
+from drivesense.recording import Recording
+from drivesense.timebase import check_fs
+
+__all__ = ["Event", "Detection", "Detector", "DetectorStream", "EVENT_KINDS", "spindle_speed_of", "feed_steady",
+           "attach_latency", "events_to_json"]
+
+#: Kinds an event may have.
+EVENT_KINDS = ("breakage", "chipping", "chatter", "collision", "overload", "missing_tool", "limit", "wear")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One detected process event.
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`EVENT_KINDS`.
+    time_s : float
+        Time the detector raised it [s] (on the force stream's time base).
+    axis : str
+        Force axis it was seen on (``"x"``), or ``"spindle"``.
+    confidence : float
+        How far the statistic went past its threshold, 0..1 (1: far) [-].
+    latency_s : float
+        Detection latency the detector declares [s] (the estimator's adds: :func:`attach_latency`).
+    detector : str
+        Name of the detector that raised it.
+    evidence : dict
+        What crossed (statistic, threshold, ratio, frequency...), JSON-safe numbers and strings.
+    """
+
+    kind: str
+    time_s: float
+    axis: str
+    confidence: float
+    latency_s: float
+    detector: str
+    evidence: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in EVENT_KINDS:
+            raise ConfigError(f"event kind must be one of {', '.join(EVENT_KINDS)}, got {self.kind!r}")
+        object.__setattr__(self, "confidence", float(min(max(self.confidence, 0.0), 1.0)))
+
+    def to_json(self) -> dict:
+        """A strict-JSON dict (finite numbers only)."""
+        evidence = {k: (_finite(v) if isinstance(v, float) else v) for k, v in self.evidence.items()}
+        return {"kind": self.kind, "time_s": _finite(self.time_s), "axis": self.axis,
+                "confidence": _finite(self.confidence), "latency_s": _finite(self.latency_s),
+                "detector": self.detector, "evidence": evidence}
+
+
+def _finite(value: float):
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def events_to_json(events: Sequence[Event], latency_s: float) -> dict:
+    """The EVENTS.json document: ``{"events": [...], "latency_s": float}``.
+
+    Parameters
+    ----------
+    events : sequence of Event
+        The events, in time order.
+    latency_s : float
+        Largest declared latency of the detectors that ran, estimator's included [s].
+    """
+    return {"events": [e.to_json() for e in sorted(events, key=lambda e: e.time_s)],
+            "latency_s": _finite(latency_s)}
+
+
+def attach_latency(events: Sequence[Event], extra_s: float) -> list[Event]:
+    """The events with ``extra_s`` (the estimator's latency [s]) added to their declared latency.
+
+    Parameters
+    ----------
+    events : sequence of Event
+        Events from a detector.
+    extra_s : float
+        The force stream's own latency [s].
+    """
+    from dataclasses import replace
+    return [replace(e, latency_s=e.latency_s + float(extra_s)) for e in events]
+
+
+@dataclass
+class Detection:
+    """What one push returns.
+
+    Attributes
+    ----------
+    events : list of Event
+        Events raised in the chunk.
+    statistic : ndarray
+        The detector's statistic per sample of the chunk (for plots) [-] or [N].
+    threshold : ndarray
+        The threshold it is compared with, per sample (NaN while not armed) [unit of the statistic].
+    """
+
+    events: list
+    statistic: np.ndarray
+    threshold: np.ndarray
+
+
+def spindle_speed_of(chunk: Mapping[str, np.ndarray], n: int, spindle_rpm: float | None) -> np.ndarray:
+    """Spindle speed per sample [rad/s]: the chunk's ``spindle_speed`` channel, else the given rpm.
+
+    Parameters
+    ----------
+    chunk : mapping of str to ndarray
+        The chunk's arrays [SI unit of each channel].
+    n : int
+        Samples in the chunk.
+    spindle_rpm : float or None
+        Fixed spindle speed [min^-1] (``--spindle-rpm``).
+
+    Raises
+    ------
+    MissingChannelError
+        Neither a ``spindle_speed`` channel nor ``--spindle-rpm``.
+    """
+    if "spindle_speed" in chunk:
+        return np.asarray(chunk["spindle_speed"], dtype=float)
+    if spindle_rpm is None:
+        raise MissingChannelError("the trace has no 'spindle_speed' channel: give the spindle speed with "
+                                  "--spindle-rpm RPM")
+    return np.full(n, float(spindle_rpm) * 2 * math.pi / 60.0)
+
+
+#: Time over which a feed change is judged [s], and the relative change that counts as one [-].
+FEED_LOOKBACK_S = 0.1
+FEED_CHANGE = 0.2
+
+
+def feed_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
+    """1.0 per sample where the feed runs steadily, 0.0 where it changes (a feed-override ramp, a start,
+    a stop) or stands; all ones when the chunk has no ``feed_speed`` channel [m/s].
+
+    The feed counts as changing where it differs by more than 20 % from its
+    value 100 ms earlier (a feed-override ramp; the short jolt a cutting-force
+    step gives the table is not one); the state keeps those last 100 ms
+    (constant size).
+
+    Parameters
+    ----------
+    chunk : mapping of str to ndarray
+        The chunk's arrays [SI unit of each channel].
+    state : dict
+        The detector's state (holds ``"fs"``; the feed history is kept in it).
+    """
+    feed = chunk.get("feed_speed")
+    if feed is None:
+        n = len(next(iter(chunk.values()))) if chunk else 0
+        return np.ones(n)
+    v = np.abs(np.asarray(feed, dtype=float))
+    lag = max(1, int(round(FEED_LOOKBACK_S * state["fs"])))
+    history = state.get("feed_history")
+    if history is None:
+        history = np.full(lag, v[0] if v.size else 0.0)
+    joined = np.concatenate([history, v])
+    past = joined[:v.size]
+    state["feed_history"] = joined[-lag:]
+    level = np.maximum(v, past)
+    return ((np.abs(v - past) <= FEED_CHANGE * level) & (level > 1e-6)).astype(float)
+
+
+def _arrays(chunk: Recording | Mapping[str, Any], names: Sequence[str]) -> tuple[dict[str, np.ndarray], float | None]:
+    """Float arrays of ``names`` (and ``spindle_speed`` / positions when present), plus the chunk's t0 [s]."""
+    if isinstance(chunk, Recording):
+        present = [c for c in chunk.channels]
+        data = {c: chunk[c] for c in present}
+        t0 = chunk.t0
+    elif isinstance(chunk, Mapping):
+        data = {k: np.asarray(v, dtype=float) for k, v in chunk.items() if k != "time"}
+        t0 = float(np.asarray(chunk["time"], dtype=float)[0]) if "time" in chunk and len(chunk["time"]) else None
+    else:
+        raise InvalidSignalError(f"push() takes a Recording or a mapping of channel arrays, got "
+                                 f"{type(chunk).__name__}")
+    missing = [c for c in names if c not in data]
+    if missing:
+        raise MissingChannelError(f"the force stream lacks channel(s) {', '.join(repr(m) for m in missing)}")
+    if isinstance(chunk, Recording):
+        return data, t0                      # a Recording is finite and of one length by construction
+    n = None
+    for c, arr in data.items():
+        if arr.ndim != 1:
+            raise InvalidSignalError(f"detector input channel '{c}' must be 1-D, got shape {arr.shape}")
+        if n is not None and arr.size != n:
+            raise InvalidSignalError(f"detector input channel '{c}' has {arr.size} samples, the others {n}")
+        if not np.all(np.isfinite(arr)):
+            raise InvalidSignalError(f"detector input channel '{c}' holds NaN or inf")
+        n = arr.size
+    return data, t0
+
+
+class Detector(ABC):
+    """Base of every process-event detector.
+
+    Subclasses set :attr:`name`, implement :attr:`channel_names`,
+    :meth:`latency_s`, :meth:`new_state` and :meth:`process`.
+    """
+
+    #: Short name (the CLI's and the bench's).
+    name: ClassVar[str] = ""
+
+    @property
+    @abstractmethod
+    def channel_names(self) -> tuple[str, ...]:
+        """Force (or power) channels the detector reads."""
+
+    @abstractmethod
+    def latency_s(self, fs: float) -> float:
+        """Worst-case detection latency the detector declares at ``fs`` [s].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+
+    @abstractmethod
+    def new_state(self, fs: float) -> Any:
+        """A fresh state of constant size for signals at ``fs`` [Hz].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+
+    @abstractmethod
+    def process(self, state: Any, arrays: Mapping[str, np.ndarray], start: int) -> tuple[list, np.ndarray,
+                                                                                           np.ndarray]:
+        """Events, statistic and threshold for the next samples, updating ``state`` in place.
+
+        Parameters
+        ----------
+        state : object
+            From :meth:`new_state`.
+        arrays : mapping of str to ndarray
+            The chunk's channels [SI unit of each channel: N, rad/s, m/s, m], equally long, finite.
+        start : int
+            Index of the chunk's first sample since the stream began.
+
+        Returns
+        -------
+        events : list of tuple
+            ``(sample_index, kind, confidence, evidence)`` per event.
+        statistic, threshold : ndarray
+            Per sample of the chunk.
+        """
+
+    def check_ready(self, state: Any) -> None:
+        """Raise when a finished batch run could not arm the detector (e.g. too short for a baseline).
+
+        Parameters
+        ----------
+        state : object
+            The state after the whole trace.
+        """
+
+    @property
+    def axis(self) -> str:
+        """The axis letter events are reported on."""
+        return getattr(self, "_axis", "x")
+
+    def stream(self, fs: float, *, t0: float = 0.0) -> "DetectorStream":
+        """A streaming detector for chunks at ``fs`` [Hz].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        t0 : float
+            Time of the first sample [s] when chunks carry no time.
+        """
+        return DetectorStream(self, fs, t0=t0)
+
+    def detect(self, forces: Recording) -> list[Event]:
+        """Every event in a whole force trace (one push from a fresh state).
+
+        Parameters
+        ----------
+        forces : Recording
+            Force channels [N] (and ``spindle_speed`` [rad/s] where needed).
+
+        Returns
+        -------
+        list of Event
+        """
+        if not isinstance(forces, Recording):
+            raise InvalidSignalError(f"detect() takes a Recording, got {type(forces).__name__}")
+        stream = self.stream(forces.fs, t0=forces.t0)
+        out = stream.push(forces)
+        self.check_ready(stream.state)
+        return out.events
+
+
+class DetectorStream:
+    """Chunk-by-chunk detection with a carried state of constant size.
+
+    Parameters
+    ----------
+    detector : Detector
+        The detector.
+    fs : float
+        Sample rate of the chunks [Hz].
+    t0 : float
+        Time of the first sample [s] (a chunk's own time wins when it has one).
+    """
+
+    def __init__(self, detector: Detector, fs: float, *, t0: float = 0.0) -> None:
+        self.detector = detector
+        self.fs = check_fs(fs)
+        self.state = detector.new_state(self.fs)
+        self.latency_s = detector.latency_s(self.fs)
+        self.samples_seen = 0
+        self._t0 = float(t0)
+        self._t0_fixed = False
+
+    def push(self, chunk: Recording | Mapping[str, Any]) -> Detection:
+        """Detect in the next samples.
+
+        Parameters
+        ----------
+        chunk : Recording or mapping of str to array_like
+            Force channels [N] (and ``spindle_speed`` [rad/s], ``time`` [s]).
+
+        Returns
+        -------
+        Detection
+        """
+        if isinstance(chunk, Recording) and abs(chunk.fs - self.fs) > 1e-6 * self.fs:
+            raise InvalidSignalError(f"the chunk's rate is {chunk.fs:g} Hz but the detector runs at {self.fs:g} Hz")
+        arrays, t0 = _arrays(chunk, self.detector.channel_names)
+        if t0 is not None and not self._t0_fixed:
+            self._t0 = t0 - self.samples_seen / self.fs
+        self._t0_fixed = True
+        n = len(next(iter(arrays.values()))) if arrays else 0
+        raw, stat, thr = self.detector.process(self.state, arrays, self.samples_seen)
+        events = [Event(kind=kind, time_s=self._t0 + index / self.fs, axis=self.detector.axis,
+                        confidence=conf, latency_s=self.latency_s, detector=self.detector.name, evidence=ev)
+                  for index, kind, conf, ev in raw]
+        self.samples_seen += n
+        return Detection(events, stat, thr)

@@ -1,0 +1,179 @@
+"""From a trace and its estimated forces to events: the inputs detectors read, the default set, one run.
+
+::
+
+    inputs = detector_inputs(trace, forces)      # forces + spindle_speed + feed_speed + table positions
+    report = run_detectors(inputs, default_detectors("x", teeth=2, force_limit_n=300))
+    report.events, report.latency_s
+
+``feed_speed`` [m/s] is the tool-path speed from the trace's table positions
+(smoothed over at least 50 ms): the detectors hold off while it changes (a feed-override
+ramp) instead of taking the new pattern for an event.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.ndimage
+
+from drivesense.errors import ConfigError
+from drivesense.monitor.breakage import BreakageDetector
+from drivesense.monitor.chatter import ChatterDetector
+from drivesense.monitor.detector import Detector, Event, attach_latency
+from drivesense.monitor.overload import OverloadDetector
+from drivesense.monitor.teach import TeachInDetector, TeachLimits
+from drivesense.recording import Recording
+
+__all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "run_detectors", "DetectionReport"]
+
+#: Smoothing of the path speed [s].
+FEED_SMOOTHING_S = 50e-3
+
+
+def feed_speed_of(trace: Recording) -> np.ndarray | None:
+    """Tool-path speed [m/s] from the trace's ``*_table_position`` channels (None without any).
+
+    Averaged over whole spindle revolutions spanning at least
+    ``FEED_SMOOTHING_S`` when the trace has ``spindle_speed`` (the table's
+    vibration under the cutting force repeats every revolution and cancels),
+    else over ``FEED_SMOOTHING_S``.
+
+    Parameters
+    ----------
+    trace : Recording
+        The drive-signal trace.
+    """
+    chans = sorted(c for c in trace.channels if c.endswith("_table_position"))
+    if not chans:
+        return None
+    v2 = sum(np.gradient(trace[c]) ** 2 for c in chans) * trace.fs ** 2
+    width = FEED_SMOOTHING_S * trace.fs
+    if "spindle_speed" in trace.channels:
+        w = float(np.median(trace["spindle_speed"]))
+        if w > 0:
+            rev = 2 * np.pi / w * trace.fs
+            width = rev * max(1, int(np.ceil(width / rev)))
+    return scipy.ndimage.uniform_filter1d(np.sqrt(v2), max(1, int(round(width))), mode="nearest")
+
+
+def detector_inputs(trace: Recording, forces: Recording) -> Recording:
+    """The force channels with what detectors also read from the trace, on the forces' time base.
+
+    Parameters
+    ----------
+    trace : Recording
+        The drive-signal trace (``spindle_speed`` [rad/s], ``*_table_position`` [m], ``spindle_power`` [W]
+        when present).
+    forces : Recording
+        An estimator's output (``force_*`` [N]), on the trace's time base.
+
+    Returns
+    -------
+    Recording
+        ``force_*``, and ``spindle_speed``, ``spindle_power``, ``feed_speed`` and the table positions
+        where the trace has them; ``meta["latency_s"]`` the forces'.
+    """
+    if forces.n_samples != trace.n_samples:
+        raise ConfigError(f"the forces have {forces.n_samples} samples, the trace {trace.n_samples}: detect on "
+                          f"forces estimated from this trace")
+    channels = {c: forces[c] for c in forces.channels}
+    for c in trace.channels:
+        if c in ("spindle_speed", "spindle_power") or c.endswith("_table_position"):
+            channels[c] = trace[c]
+    feed = feed_speed_of(trace)
+    if feed is not None:
+        channels["feed_speed"] = feed
+    return Recording.from_arrays(channels, fs=trace.fs, t0=trace.t0,
+                                 meta={"name": forces.meta.get("name", "forces"),
+                                       "latency_s": float(forces.meta.get("latency_s", 0.0))})
+
+
+def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float | None = None,
+                      limits: TeachLimits | None = None, force_limit_n: float | None = None,
+                      band_hz: float | None = None,
+                      kinds: Sequence[str] = ("breakage", "chatter", "overload", "teach-in")) -> list[Detector]:
+    """The detectors ``drivesense detect`` runs on one axis.
+
+    Parameters
+    ----------
+    axis : str
+        Axis letter of the force.
+    teeth : int, optional
+        Number of teeth (breakage needs it; without it breakage is not run).
+    spindle_rpm : float, optional
+        Fixed spindle speed [min^-1] for traces without ``spindle_speed``.
+    limits : TeachLimits, optional
+        Taught bands (teach-in runs only with them); their force limit serves overload.
+    force_limit_n : float, optional
+        Collision/overload limit [N] (overrides the taught one).
+    band_hz : float, optional
+        The force estimate's bandwidth [Hz] (its low-pass): chatter is looked for below 0.8 of it.
+    kinds : sequence of str
+        Which detectors to consider.
+    """
+    out: list[Detector] = []
+    if "breakage" in kinds and teeth is not None:
+        out.append(BreakageDetector(axis, teeth, spindle_rpm=spindle_rpm))
+    if "chatter" in kinds:
+        out.append(ChatterDetector(axis, spindle_rpm=spindle_rpm,
+                                   highest_hz=None if band_hz is None else 0.8 * band_hz))
+    limit = force_limit_n if force_limit_n is not None else (limits.force_limit_n if limits is not None else None)
+    if "overload" in kinds and limit is not None:
+        out.append(OverloadDetector(axis, limit))
+    if "teach-in" in kinds and limits is not None:
+        out.append(TeachInDetector(limits))
+    return out
+
+
+@dataclass
+class DetectionReport:
+    """Events of a run of detectors and what they saw.
+
+    Attributes
+    ----------
+    events : list of Event
+        In time order; latencies include the force stream's.
+    latency_s : float
+        The largest declared latency [s] (estimator's included).
+    statistics : dict
+        Detector name -> (statistic, threshold) arrays per sample.
+    detectors : list of Detector
+        What ran.
+    """
+
+    events: list
+    latency_s: float
+    statistics: dict = field(default_factory=dict)
+    detectors: list = field(default_factory=list)
+
+
+def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bool = True) -> DetectionReport:
+    """Run detectors over a whole force trace (each one push from a fresh state).
+
+    Parameters
+    ----------
+    inputs : Recording
+        From :func:`detector_inputs`.
+    detectors : sequence of Detector
+        What to run.
+    check : bool
+        Refuse a trace a detector could not arm on (e.g. too short a cut for a baseline).
+    """
+    if not detectors:
+        raise ConfigError("no detector to run: give --teeth for breakage, --force-limit or --limits for overload")
+    extra = float(inputs.meta.get("latency_s", 0.0))
+    events: list[Event] = []
+    stats = {}
+    latency = 0.0
+    for det in detectors:
+        stream = det.stream(inputs.fs, t0=inputs.t0)
+        out = stream.push(inputs)
+        if check:
+            det.check_ready(stream.state)
+        events += attach_latency(out.events, extra)
+        stats[det.name] = (out.statistic, out.threshold)
+        latency = max(latency, stream.latency_s + extra)
+    return DetectionReport(sorted(events, key=lambda e: e.time_s), latency, stats, list(detectors))

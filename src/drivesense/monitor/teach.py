@@ -1,0 +1,403 @@
+"""Teach-in limits, the industry's standard: bands learnt from good runs of one NC program.
+
+:func:`teach` cuts every good run into bins -- of program time (``align="time"``)
+or of tool path length (``align="path"``: the distance travelled by the
+table-position channels, so a feed-rate override does not shift the bands) --
+and takes per bin and channel the mean magnitude of the signal (force [N],
+spindle power [W]).  The band is the runs' range widened by ``tolerance``
+and a noise floor::
+
+    upper = max_runs * (1 + tolerance) + floor,     lower = min_runs * (1 - tolerance) - floor
+
+:class:`TeachInDetector` streams a new run through the same bins and raises an
+event when ``persist_bins`` bins in a row leave the band: ``limit`` (too high:
+overload, wear; too low: a broken or chipped tool) or ``missing_tool`` (a bin
+the good runs cut in, at the level of air).  The limits are strict JSON
+(:meth:`TeachLimits.to_json`), written atomically by the CLI
+(``drivesense teach``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivesense.errors import ConfigError, MissingChannelError, SignalTooShortError
+from drivesense.machine.milling import check_int, check_number
+from drivesense.monitor.detector import Detector
+from drivesense.recording import Recording
+
+__all__ = ["TeachLimits", "teach", "TeachInDetector", "path_length"]
+
+_ALIGN = ("time", "path")
+_FORMAT = "drivesense teach-in limits 1"
+
+
+def _path_channels(names: Sequence[str]) -> list[str]:
+    """Table-position channels that measure the tool path (``*_table_position``)."""
+    return sorted(c for c in names if c.endswith("_table_position"))
+
+
+def path_length(positions: Sequence[np.ndarray], start: float = 0.0, last: Sequence[float] | None = None
+                ) -> np.ndarray:
+    """Cumulative distance travelled along the given position channels [m].
+
+    Parameters
+    ----------
+    positions : sequence of ndarray
+        Position per axis [m], equally long.
+    start : float
+        Distance already travelled before the first sample [m].
+    last : sequence of float, optional
+        Positions just before the first sample [m] (a stream's previous chunk).
+    """
+    if not positions:
+        raise MissingChannelError("path alignment needs table-position channels (*_table_position)")
+    steps = np.zeros(positions[0].size)
+    for k, p in enumerate(positions):
+        prev = p[0] if last is None else last[k]
+        d = np.diff(np.concatenate([[prev], p]))
+        steps += d ** 2
+    return start + np.cumsum(np.sqrt(steps))
+
+
+@dataclass
+class TeachLimits:
+    """Bands per bin and channel, learnt from good runs.
+
+    Attributes
+    ----------
+    channels : tuple of str
+        Channels the bands are for (``force_x`` [N], ``spindle_power`` [W] ...).
+    align : {"time", "path"}
+        Bins of program time [s] or of tool-path length [m].
+    bin_width : float
+        Width of a bin [s] or [m].
+    mean, upper, lower : dict of str to ndarray
+        Per channel and bin: the runs' mean magnitude and the band [unit of the channel].
+    runs : int
+        Good runs taught.
+    force_limit_n : float
+        Collision/overload limit derived from the runs: ``limit_factor`` times their largest force [N].
+    feed : ndarray or None
+        The runs' mean feed speed per bin [m/s] (when they had ``feed_speed``): a run at another feed
+        (an override) has its band widened by the ratio, down for a slower feed, up for a faster one.
+    """
+
+    channels: tuple
+    align: str
+    bin_width: float
+    mean: dict
+    upper: dict
+    lower: dict
+    runs: int
+    force_limit_n: float
+    feed: np.ndarray | None = None
+
+    @property
+    def bins(self) -> int:
+        """Number of bins."""
+        return len(next(iter(self.mean.values())))
+
+    def to_json(self) -> dict:
+        """Strict JSON (no NaN): the document ``drivesense teach --out`` writes."""
+        return {"format": _FORMAT, "channels": list(self.channels), "align": self.align,
+                "bin_width": self.bin_width, "bin_unit": "s" if self.align == "time" else "m", "runs": self.runs,
+                "force_limit_n": self.force_limit_n,
+                "feed_m_per_s": None if self.feed is None else self.feed.tolist(),
+                "bands": {c: {"mean": self.mean[c].tolist(), "upper": self.upper[c].tolist(),
+                              "lower": self.lower[c].tolist()} for c in self.channels}}
+
+    @classmethod
+    def from_json(cls, doc: Mapping) -> "TeachLimits":
+        """Read limits written by :meth:`to_json` (checked field by field).
+
+        Parameters
+        ----------
+        doc : mapping
+            The parsed LIMITS.json.
+        """
+        if not isinstance(doc, Mapping) or doc.get("format") != _FORMAT:
+            raise ConfigError(f"--limits: not a teach-in limits file (its 'format' must be {_FORMAT!r}; "
+                              f"write one with 'drivesense teach')")
+        try:
+            channels = tuple(str(c) for c in doc["channels"])
+            align = str(doc["align"])
+            width = check_number(doc["bin_width"], "bin_width", positive=True)
+            bands = doc["bands"]
+            arrays = {k: {c: np.asarray(bands[c][k], dtype=float) for c in channels}
+                      for k in ("mean", "upper", "lower")}
+            runs = check_int(doc["runs"], "runs")
+            limit = check_number(doc["force_limit_n"], "force_limit_n", positive=True)
+            feed = doc.get("feed_m_per_s")
+            feed = None if feed is None else np.asarray(feed, dtype=float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"--limits: a field is missing or malformed ({exc})") from None
+        if align not in _ALIGN:
+            raise ConfigError(f"--limits: 'align' must be 'time' or 'path', got {align!r}")
+        sizes = {a.size for d in arrays.values() for a in d.values()}
+        if len(sizes) != 1 or not all(np.all(np.isfinite(a)) for d in arrays.values() for a in d.values()):
+            raise ConfigError("--limits: the bands must be finite and equally long")
+        if feed is not None and (feed.shape != next(iter(arrays["mean"].values())).shape
+                                 or not np.all(np.isfinite(feed))):
+            raise ConfigError("--limits: 'feed_m_per_s' must be finite and as long as the bands")
+        return cls(channels, align, width, arrays["mean"], arrays["upper"], arrays["lower"], runs, limit, feed)
+
+    def dumps(self) -> str:
+        """The JSON text (strict)."""
+        return json.dumps(self.to_json(), indent=1, allow_nan=False)
+
+
+def _bin_index(rec: Recording, align: str, width: float) -> np.ndarray:
+    if align == "time":
+        return np.floor((rec.time - rec.t0) / width).astype(np.int64)
+    chans = _path_channels(rec.channels)
+    return np.floor(path_length([rec[c] for c in chans]) / width).astype(np.int64)
+
+
+def _bin_means(values: np.ndarray, index: np.ndarray, bins: int) -> np.ndarray:
+    keep = index < bins
+    total = np.bincount(index[keep], weights=np.abs(values[keep]), minlength=bins)[:bins]
+    count = np.bincount(index[keep], minlength=bins)[:bins]
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def teach(runs: Sequence[Recording], channels: Sequence[str] | None = None, *, align: str = "auto",
+          bin_width: float | None = None, tolerance: float = 0.3, floor: float | None = None,
+          limit_factor: float = 3.0) -> TeachLimits:
+    """Learn teach-in bands from good runs of one NC program.
+
+    Parameters
+    ----------
+    runs : sequence of Recording
+        Good runs (estimated forces [N] and/or ``spindle_power`` [W], with table positions for path
+        alignment), each from the program's start.
+    channels : sequence of str, optional
+        Channels to band (default: every ``force_*`` and ``spindle_power`` channel).
+    align : {"auto", "time", "path"}
+        ``auto``: path when the runs have table positions, else time.
+    bin_width : float, optional
+        Bin width [s] or [m] (default 0.05 s or 0.5 mm).
+    tolerance : float
+        Relative widening of the runs' range [-].
+    floor : float, optional
+        Absolute widening [unit of the channel] (default: 3 times the median spread between the runs
+        per bin, at least 0.5 and at least 10 % of the largest bin mean: an estimate's error at another
+        feed is of that order in air).
+    limit_factor : float
+        Collision/overload limit as a multiple of the largest force in the runs [-].
+
+    Returns
+    -------
+    TeachLimits
+
+    Raises
+    ------
+    SignalTooShortError
+        Fewer than 2 runs, or runs shorter than 4 bins.
+    MissingChannelError
+        A run without a banded channel, or without positions for ``align="path"``.
+    """
+    runs = list(runs)
+    if len(runs) < 2:
+        raise SignalTooShortError(f"teach-in needs at least 2 good runs of the program, got {len(runs)}")
+    if align not in ("auto",) + _ALIGN:
+        raise ConfigError(f"--align must be auto, time or path, got {align!r}")
+    if align == "auto":
+        align = "path" if all(_path_channels(r.channels) for r in runs) else "time"
+    width = bin_width if bin_width is not None else (0.05 if align == "time" else 0.5e-3)
+    width = check_number(width, "bin_width", positive=True)
+    tolerance = check_number(tolerance, "tolerance", nonneg=True)
+    if channels is None:
+        channels = [c for c in runs[0].channels if c.startswith("force_") or c == "spindle_power"]
+    channels = tuple(channels)
+    if not channels:
+        raise MissingChannelError("teach-in: the runs have no force_* or spindle_power channel to band")
+    indices = []
+    for k, r in enumerate(runs):
+        missing = [c for c in channels if c not in r.channels]
+        if missing:
+            raise MissingChannelError(f"teach-in run {k + 1} ({r.meta.get('name', 'trace')}) lacks "
+                                      f"{', '.join(missing)}")
+        indices.append(_bin_index(r, align, width))
+    bins = int(min(idx.max() for idx in indices))          # the last bin of the shortest run may be partial
+    if bins < 4:
+        raise SignalTooShortError(f"teach-in: the runs cover only {bins} bin(s) of {width:g} "
+                                  f"{'s' if align == 'time' else 'm'}; use a smaller --bin-width")
+    mean, upper, lower = {}, {}, {}
+    peak = 0.0
+    for c in channels:
+        per_run = np.vstack([_bin_means(r[c], idx, bins) for r, idx in zip(runs, indices)])
+        per_run = np.where(np.isnan(per_run), np.nanmean(per_run, axis=0), per_run)
+        spread = np.median(np.std(per_run, axis=0))
+        fl = floor if floor is not None else max(3.0 * spread, 0.5, 0.1 * float(np.max(per_run.mean(axis=0))))
+        mean[c] = per_run.mean(axis=0)
+        upper[c] = per_run.max(axis=0) * (1 + tolerance) + fl
+        lower[c] = np.maximum(per_run.min(axis=0) * (1 - tolerance) - fl, 0.0)
+        if c.startswith("force_"):
+            peak = max(peak, max(float(np.max(np.abs(r[c]))) for r in runs))
+    limit = check_number(limit_factor, "limit_factor", positive=True) * max(peak, 1.0)
+    feed = None
+    if all("feed_speed" in r.channels for r in runs):
+        per_run = np.vstack([_bin_means(r["feed_speed"], idx, bins) for r, idx in zip(runs, indices)])
+        feed = np.nanmean(per_run, axis=0)
+    return TeachLimits(channels, align, float(width), mean, upper, lower, len(runs), float(limit), feed)
+
+
+class TeachInDetector(Detector):
+    """Alarm when a run leaves the bands taught from good runs (see the module docstring).
+
+    Parameters
+    ----------
+    limits : TeachLimits
+        The taught bands.
+    persist_bins : int
+        Bins in a row out of band for an event.
+    missing_share : float
+        A bin below the band at less than this share of the taught mean is a missing tool [-].
+    """
+
+    name = "teach-in"
+
+    def __init__(self, limits: TeachLimits, *, persist_bins: int = 2, missing_share: float = 0.25) -> None:
+        if not isinstance(limits, TeachLimits):
+            raise ConfigError(f"'limits' must be TeachLimits, got {type(limits).__name__}")
+        self.limits = limits
+        self.persist_bins = check_int(persist_bins, "persist_bins")
+        self.missing_share = check_number(missing_share, "missing_share", positive=True)
+        first = limits.channels[0]
+        self._axis = first.split("_", 1)[1] if first.startswith("force_") else "spindle"
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The banded channels."""
+        return tuple(self.limits.channels)
+
+    def latency_s(self, fs: float) -> float:
+        """``persist_bins`` bins (time alignment), or as many bins of path at 1 mm/s [s].
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        per_bin = self.limits.bin_width if self.limits.align == "time" else self.limits.bin_width / 1e-3
+        return (self.persist_bins + 1) * per_bin
+
+    def new_state(self, fs: float) -> dict:
+        """The running bin's sums, the path so far, the out-of-band count (constant size).
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        """
+        k = len(self.limits.channels)
+        return {"fs": float(fs), "bin": 0, "sum": np.zeros(k), "count": 0, "feed": 0.0, "path": 0.0, "last": None,
+                "out": 0, "samples": 0, "latched": False}
+
+    def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
+        """Events, the first channel's running mean magnitude in its bin, and the bin's upper band.
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`new_state`; updated in place.
+        arrays : mapping of str to ndarray
+            The chunk's channels [SI unit of each channel: N, rad/s, m/s, m], equally long.
+        start : int
+            Index of the chunk's first sample since the stream began.
+        """
+        lim = self.limits
+        n = len(arrays[lim.channels[0]])
+        if lim.align == "time":
+            idx = np.floor((state["samples"] + np.arange(n)) / state["fs"] / lim.bin_width).astype(np.int64)
+        else:
+            chans = _path_channels(arrays.keys())
+            pos = [np.asarray(arrays[c], dtype=float) for c in chans]
+            s = path_length(pos, state["path"], state["last"])
+            state["path"] = float(s[-1]) if n else state["path"]
+            state["last"] = [float(p[-1]) for p in pos] if n else state["last"]
+            idx = np.floor(s / lim.bin_width).astype(np.int64)
+        state["samples"] += n
+        values = np.vstack([np.abs(np.asarray(arrays[c], dtype=float)) for c in lim.channels])
+        feed = np.abs(np.asarray(arrays["feed_speed"], dtype=float)) if "feed_speed" in arrays else None
+        stat = np.full(n, np.nan)
+        thr = np.full(n, np.nan)
+        events = []
+        # bin boundaries inside the chunk: close the running bin at each
+        change = np.flatnonzero(np.diff(np.concatenate([[state["bin"]], idx])) != 0)
+        edges = np.concatenate([[0], change, [n]])
+        first = lim.channels[0]
+        for a, b in zip(edges[:-1], edges[1:]):
+            if b > a and idx[a] == state["bin"]:
+                # the statistic: the running mean of the bin so far (causal: the same in any chunking)
+                run = state["sum"][0] + np.cumsum(values[0, a:b])
+                if 0 <= state["bin"] < lim.bins:
+                    stat[a:b] = run / (state["count"] + np.arange(1, b - a + 1))
+                    thr[a:b] = lim.upper[first][state["bin"]]
+                state["sum"] += values[:, a:b].sum(axis=1)
+                state["count"] += int(b - a)
+                if feed is not None:
+                    state["feed"] += float(feed[a:b].sum())
+            if b < n:                               # bin state["bin"] is complete at sample b
+                ev = self._close_bin(state, start + int(b))
+                if ev is not None:
+                    events.append(ev)
+                state["bin"] = int(idx[b])
+                state["sum"][:] = 0.0
+                state["count"] = 0
+                state["feed"] = 0.0
+        return events, stat, thr
+
+    def _close_bin(self, state: dict, index: int):
+        lim = self.limits
+        b = state["bin"]
+        if not (0 <= b < lim.bins) or state["count"] == 0:
+            return None
+        means = state["sum"] / state["count"]
+        ratio = 1.0
+        if lim.feed is not None and state["feed"] > 0.0 and lim.feed[b] > 0.0:
+            ratio = state["feed"] / state["count"] / lim.feed[b]
+        worst = None
+        for k, c in enumerate(lim.channels):
+            # a slower feed (an override) thins the chip and lowers the force, a faster one raises it
+            v, mu = means[k], lim.mean[c][b]
+            up = lim.upper[c][b] * max(1.0, ratio)
+            lo = lim.lower[c][b] * min(1.0, ratio)
+            if v > up:
+                cand = ("limit", v / up, {"channel": c, "side": "high", "value": float(v), "band": float(up),
+                                          "bin": int(b)})
+            elif v < lo:
+                kind = "missing_tool" if v < self.missing_share * mu else "limit"
+                cand = (kind, lo / max(v, 1e-9), {"channel": c, "side": "low", "value": float(v), "band": float(lo),
+                                                 "bin": int(b)})
+            else:
+                continue
+            if worst is None or cand[1] > worst[1]:
+                worst = cand
+        if worst is None:
+            state["out"] = 0
+            state["latched"] = False
+            return None
+        state["out"] += 1
+        if state["out"] < self.persist_bins or state["latched"]:
+            return None
+        state["latched"] = True
+        kind, ratio, evidence = worst
+        return (index, kind, min(1.0, 0.5 + 0.5 * (ratio - 1.0)), evidence)
+
+    def check_ready(self, state: dict) -> None:
+        """Nothing to learn: the bands are given.
+
+        Parameters
+        ----------
+        state : dict
+            The state after the whole trace.
+        """
+        if state["samples"] == 0:
+            raise SignalTooShortError("teach-in detector: the trace is empty")
+
