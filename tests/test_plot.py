@@ -130,7 +130,30 @@ def _trace_wavelength():
                                        feed_source="test")
 
 
+def _events():
+    from drivesense.monitor import OverloadDetector, run_detectors
+
+    fs = 10_000.0
+    t = np.arange(int(fs)) / fs
+    force = 20.0 * np.abs(np.sin(2 * np.pi * 50 * t)) + np.where(t > 0.6, 400.0, 0.0)
+    rec = Recording.from_arrays({"force_x": force}, fs=fs, meta={"name": "f"})
+    report = run_detectors(rec, [OverloadDetector("x", 300.0)])
+    return ds_plot.plot_events(rec, report, truth=[{"kind": "collision", "time_s": 0.6}])
+
+
+def _stability_lobes():
+    from drivesense.machine.milling import CuttingCoefficients
+    from drivesense.machine.stability import stability_lobes
+    from drivesense.machine.tool_dynamics import ToolDynamics
+
+    lobes = stability_lobes(ToolDynamics.symmetric(600.0, 0.03, 5e6), CuttingCoefficients.aluminium(), 2, 0.0,
+                            np.pi, rpm_range=(2000.0, 12000.0), points=400)
+    return ds_plot.plot_stability_lobes(lobes, cuts=[(4000.0, 2e-4, "stable"), (6000.0, 2e-3, "chatter")])
+
+
 FIGURES = {
+    "plot_events": (_events, None),
+    "plot_stability_lobes": (_stability_lobes, (990, 660)),
     "plot_estimates": (_estimates, (1100, 990)),
     "plot_force_estimate": (_force_estimate, (990, 924)),
     "plot_pocket_estimate": (_pocket_estimate, (990, 638)),

@@ -240,3 +240,20 @@ def show_warnings():
             warn(str(w.message))
         else:
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
+def parse_window(text: str, option: str = "--tare") -> tuple[float, float]:
+    """``START:END`` [s] of a CLI option; ConfigError naming `option`."""
+    import math
+
+    from drivesense.errors import ConfigError
+
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise ConfigError(f"{option} {text!r}: expected START:END in seconds, e.g. 0.5:1.4") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(f"{option} {text!r}: START and END must be finite numbers of seconds")
+    if not b > a:
+        raise ConfigError(f"{option} {text!r}: END must be after START")
+    return a, b

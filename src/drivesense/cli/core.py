@@ -11,7 +11,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator,
-                                   console, friendly, progress_bar, save_recording, trace_reader, warn, write_json)
+                                   console, friendly, parse_window, progress_bar, save_recording, trace_reader, warn,
+                                   write_json)
 
 __all__ = ["register"]
 
@@ -82,6 +83,10 @@ def simulate(
                                                              "(default 500).")] = None,
     rpm: Annotated[Optional[float], typer.Option("--rpm", help="Linear-machine processes: spindle speed [min^-1] "
                                                                "(default 4500).")] = None,
+    event: Annotated[Optional[list[str]], typer.Option("--event", help="Ball-screw feed cuts: inject an event, "
+                     "KIND@TIME[:VALUE] with TIME [s]: breakage@6 (flute 0), chipping@6:0.4 (edge loss), "
+                     "collision@6.5:500 or overload@6.5:300 (force [N]), feed_override@5:0.6 (factor), "
+                     "missing_tool@0.  Repeatable.")] = None,
 ) -> None:
     """Simulate one scenario to a file: drive signals plus the true force (ball-screw stage or linear-motor machine)."""
     from dataclasses import replace
@@ -115,7 +120,8 @@ def simulate(
     if scenario == AIR_MOVES and out.suffix.lower() in (".nc", ".csv"):
         raise ConfigError(f"{AIR_MOVES} writes 9 recordings: give --out a folder (one .nc file per move), "
                           f"not '{out}'")
-    recs = simulate_scenario(scenario, seed=seed, ideal=ideal, params=params)
+    recs = simulate_scenario(scenario, seed=seed, ideal=ideal, params=params,
+                             events=tuple(_parse_event(e) for e in event or ()))
     if scenario == AIR_MOVES:
         for rec in recs:
             save_recording(rec, out / f"{rec.name}.nc", parents=True)
@@ -126,21 +132,25 @@ def simulate(
 
 
 # ------------------------------------------------------------------ estimate
-def _parse_window(text: str, option: str = "--tare") -> tuple[float, float]:
-    """``START:END`` [s] of a CLI option; ConfigError naming `option`."""
-    import math
-
+def _parse_event(text: str):
+    """``--event KIND@TIME[:VALUE]`` -> a simulator ProcessEvent."""
     from drivesense.errors import ConfigError
+    from drivesense.sim.process_events import EVENT_SIM_KINDS, ProcessEvent
 
+    kind, _, rest = text.partition("@")
+    when, _, value = rest.partition(":")
+    if kind not in EVENT_SIM_KINDS or not when:
+        raise ConfigError(f"--event {text!r}: write KIND@TIME[:VALUE] with KIND one of {', '.join(EVENT_SIM_KINDS)}")
     try:
-        a, b = (float(v) for v in text.split(":"))
+        t = float(when)
+        v = float(value) if value else None
     except ValueError:
-        raise ConfigError(f"{option} {text!r}: expected START:END in seconds, e.g. 0.5:1.4") from None
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise ConfigError(f"{option} {text!r}: START and END must be finite numbers of seconds")
-    if not b > a:
-        raise ConfigError(f"{option} {text!r}: END must be after START")
-    return a, b
+        raise ConfigError(f"--event {text!r}: TIME and VALUE must be numbers") from None
+    extra = {"chipping": {"edge_loss": 0.4 if v is None else v},
+             "collision": {"force_n": 500.0 if v is None else v, "rise_s": 2e-4},
+             "overload": {"force_n": 300.0 if v is None else v, "rise_s": 0.3},
+             "feed_override": {"factor": 0.6 if v is None else v}}.get(kind, {})
+    return ProcessEvent(kind, t, **extra)
 
 
 #: What an estimate without --idle or --tare means, and what to add.
@@ -181,7 +191,7 @@ def estimate(
     read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
-    zoom = _parse_window(plot_window, "--plot-window") if plot_window is not None else None
+    zoom = parse_window(plot_window, "--plot-window") if plot_window is not None else None
     if zoom is not None and plot is None:
         raise ConfigError("--plot-window sets the close-up of --plot PNG: give --plot too")
     if est.drive != "ballscrew":
@@ -207,7 +217,7 @@ def estimate(
         info["friction_map_repeatability_n"] = est.friction_map.repeatability_rms
     elif tare:
         info["compensation"] = "tare"
-        info["tare_n"] = est.tare(rec, *_parse_window(tare))
+        info["tare_n"] = est.tare(rec, *parse_window(tare))
     else:
         info["compensation"] = "none"
         info["warnings"].append(_NO_COMPENSATION)
@@ -307,7 +317,7 @@ def friction(
 @app.command()
 @friendly
 def bench(
-    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | all")] = "all",
+    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | events | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
@@ -341,7 +351,7 @@ def bench(
         console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
                       f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions",
                       markup=False)
-    for part in ("wear", "io", "learn", "nc"):
+    for part in ("wear", "io", "learn", "nc", "events"):
         if part in result and isinstance(result[part], dict):
             _print_targets(part, result[part])
     write_json(json_path, result)

@@ -13,12 +13,14 @@ any matplotlib figure.
 
 from drivesense.plot.coefficients import plot_calibration
 from drivesense.plot.estimates import plot_estimates, plot_force_estimate, plot_pocket_estimate
+from drivesense.plot.events import plot_events
 from drivesense.plot.feed_power import plot_feed_power
 from drivesense.plot.figure import save_figure
 from drivesense.plot.friction import plot_friction_maps
 from drivesense.plot.frf import plot_frf_fit
 from drivesense.plot.linear_axis import plot_identification
 from drivesense.plot.sensor import plot_sensor_calibration
+from drivesense.plot.stability import plot_stability_lobes
 from drivesense.plot.trace import plot_trace_spectrum
 from drivesense.plot.wear import plot_wear_track
 
@@ -35,4 +37,6 @@ __all__ = [
     "plot_sensor_calibration",
     "plot_wear_track",
     "plot_trace_spectrum",
+    "plot_events",
+    "plot_stability_lobes",
 ]

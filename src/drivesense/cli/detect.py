@@ -1,0 +1,209 @@
+"""``drivesense detect`` (process events in a trace) and ``drivesense teach`` (teach-in limits from good runs)."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, build_estimator, check_output,
+                                   console, friendly, parse_window, trace_reader, write_json)
+
+__all__ = ["register"]
+
+AxisOpt = Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal] (ball screw).")]
+MethodOpt = Annotated[str, typer.Option(help="current | rigid | medob | vibration (--axis); model (--axes); "
+                                             "lstm | hybrid (--model)")]
+IdleOpt = Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")]
+TareOpt = Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")]
+AxisNameOpt = Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")]
+AxesOpt = Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")]
+ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")]
+
+
+def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
+    """The trace and the detector inputs (estimated forces + spindle speed, feed, positions)."""
+    from drivesense.errors import ConfigError
+    from drivesense.monitor.pipeline import detector_inputs
+
+    rec = read(trace, axis_name) if est.drive == "ballscrew" else read(trace)
+    if est.drive == "ballscrew":
+        if idle and tare:
+            raise ConfigError("give either --idle runs or --tare, not both")
+        if idle:
+            est.fit([read(p, axis_name) for p in idle])
+        elif tare:
+            est.tare(rec, *parse_window(tare))
+        else:
+            raise ConfigError(f"--method {method} needs --idle runs (friction map) or --tare START:END: without "
+                              "them the friction would be taken for process force")
+    elif idle or tare:
+        raise ConfigError(f"--method {method} takes no --idle/--tare (it reads a 3-axis NC trace)")
+    forces = est.estimate(rec)
+    return rec, detector_inputs(rec, forces)
+
+
+def _teeth(rec, teeth: Optional[int]) -> Optional[int]:
+    if teeth is not None:
+        return teeth
+    tool = rec.meta.get("tool") if isinstance(rec.meta.get("tool"), dict) else None
+    return int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``detect`` and ``teach`` to the root app."""
+
+    @app.command()
+    @friendly
+    def detect(
+        trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header), .nc or .xml trace.")],
+        json_path: Annotated[Path, typer.Option("--json", help="Write EVENTS.json here.")],
+        axis_file: AxisOpt = None,
+        method: MethodOpt = "vibration",
+        idle: IdleOpt = None,
+        tare: TareOpt = None,
+        spindle_rpm: Annotated[Optional[float], typer.Option("--spindle-rpm", help="Spindle speed [min^-1] when "
+                                                             "the trace has no spindle_speed column.")] = None,
+        teeth: Annotated[Optional[int], typer.Option("--teeth", help="Number of teeth (flutes) of the tool: the "
+                                                     "breakage detector needs it.")] = None,
+        limits: Annotated[Optional[Path], typer.Option("--limits", help="LIMITS.json from 'drivesense teach'.")]
+        = None,
+        force_limit: Annotated[Optional[float], typer.Option("--force-limit", help="Collision/overload limit [N] "
+                                                             "(default: the taught one).")] = None,
+        baseline_revs: Annotated[int, typer.Option("--baseline-revs", help="Revolutions of each cut the breakage "
+                                                   "detector learns its baseline over.")] = 8,
+        plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: force, detector statistics, thresholds "
+                                                          "and events on one time axis.")] = None,
+        axis_name: AxisNameOpt = "x",
+        axes_file: AxesOpt = None,
+        model_dir: ModelOpt = None,
+        assume_si: AssumeSiOpt = False,
+        fs: FsOpt = None,
+        resample: ResampleOpt = None,
+        bad_samples: BadSamplesOpt = None,
+    ) -> None:
+        """Detect process events (breakage, chipping, chatter, collision, overload, missing tool, teach-in limits)."""
+        from drivesense.errors import ConfigError
+        from drivesense.monitor import BreakageDetector, TeachLimits
+        from drivesense.monitor.detector import events_to_json
+        from drivesense.monitor.pipeline import default_detectors, run_detectors
+
+        check_output(json_path, "--json")
+        if plot is not None:
+            check_output(plot, "--plot")
+        if spindle_rpm is not None and not spindle_rpm > 0:
+            raise ConfigError(f"--spindle-rpm must be > 0, got {spindle_rpm!r}")
+        if teeth is not None and teeth < 1:
+            raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
+        taught = None
+        if limits is not None:
+            try:
+                taught = TeachLimits.from_json(json.loads(Path(limits).read_text()))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise ConfigError(f"--limits {limits}: cannot read it ({exc})") from None
+        est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
+                              axis_name=axis_name)
+        read = trace_reader(fs, resample, assume_si, bad_samples)
+        rec, inputs = _forces(trace, read, est, method, idle, tare, axis_name)
+        if "spindle_speed" not in inputs.channels and spindle_rpm is None:
+            raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
+        z = _teeth(rec, teeth)
+        rpm = spindle_rpm
+        if rpm is None:                        # the trace's own speed: it sets the latency the detectors declare
+            import numpy as np
+
+            rpm = float(np.median(inputs["spindle_speed"])) * 60.0 / (2 * np.pi)
+            rpm = rpm if rpm > 0 else None
+        band = getattr(getattr(est, "signal", None), "lpf_hz", None)
+        axes = [c.split("_", 1)[1] for c in inputs.channels if c.startswith("force_")]
+        detectors = []
+        for ax in axes:
+            dets = default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=taught if ax == axes[0] else None,
+                                     force_limit_n=force_limit if force_limit is not None else
+                                     (taught.force_limit_n if taught else None), band_hz=band)
+            for d in dets:
+                if isinstance(d, BreakageDetector):
+                    d.baseline_revs = baseline_revs
+            detectors += dets
+        report = run_detectors(inputs, detectors)
+        payload = events_to_json(report.events, report.latency_s)
+        payload.update({"trace": str(trace), "method": method, "detectors": [d.name for d in detectors],
+                        "teeth": z, "estimator_latency_s": float(inputs.meta["latency_s"])})
+        if z is None:
+            payload["note"] = "no --teeth given: breakage and chipping were not looked for"
+        write_json(json_path, payload)
+        if plot is not None:
+            from drivesense.plot import plot_events, save_figure
+
+            truth = rec.meta.get("truth", {}).get("events") if isinstance(rec.meta.get("truth"), dict) else None
+            save_figure(plot_events(inputs, report, channel=f"force_{axes[0]}", truth=truth,
+                                    title=f"{trace.name}: {len(report.events)} event(s)"), plot)
+        table = Table(title=escape(f"events in {trace.name} ({method})"))
+        for col in ("time [s]", "kind", "axis", "confidence", "evidence"):
+            table.add_column(col)
+        for e in report.events:
+            ev = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in e.evidence.items())
+            table.add_row(f"{e.time_s:.4f}", e.kind, e.axis, f"{e.confidence:.2f}", escape(ev))
+        console.print(table)
+        console.print(f"{len(report.events)} event(s); declared latency {report.latency_s * 1e3:.1f} ms "
+                      f"(detectors: {', '.join(d.name for d in detectors)}); wrote {json_path}", markup=False)
+
+    @app.command()
+    @friendly
+    def teach(
+        traces: Annotated[list[Path], typer.Argument(help="Good runs of one NC program (CSV, .nc or .xml).")],
+        out: Annotated[Path, typer.Option("--out", help="Write LIMITS.json here.")],
+        axis_file: AxisOpt = None,
+        method: MethodOpt = "vibration",
+        idle: IdleOpt = None,
+        tare: TareOpt = None,
+        align: Annotated[str, typer.Option(help="auto | time | path: bins of program time or of tool-path "
+                                                "length (path: a feed override does not shift them).")] = "auto",
+        bin_width: Annotated[Optional[float], typer.Option("--bin-width", help="Bin width [s] (time) or [mm] "
+                                                           "(path); default 0.05 s or 0.5 mm.")] = None,
+        tolerance: Annotated[float, typer.Option(help="Relative widening of the runs' range [-].")] = 0.3,
+        axis_name: AxisNameOpt = "x",
+        axes_file: AxesOpt = None,
+        model_dir: ModelOpt = None,
+        assume_si: AssumeSiOpt = False,
+        fs: FsOpt = None,
+        resample: ResampleOpt = None,
+        bad_samples: BadSamplesOpt = None,
+    ) -> None:
+        """Learn teach-in bands (force and spindle power) from good runs of one NC program."""
+        from drivesense.monitor import teach as teach_limits
+
+        check_output(out, "--out")
+        est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
+                              axis_name=axis_name)
+        read = trace_reader(fs, resample, assume_si, bad_samples)
+        runs = [_forces(t, read, est, method, idle, tare, axis_name)[1] for t in traces]
+        resolved = align
+        if align == "auto":
+            resolved = "path" if all(any(c.endswith("_table_position") for c in r.channels) for r in runs) else "time"
+        width = None if bin_width is None else (bin_width if resolved == "time" else bin_width * 1e-3)
+        limits = teach_limits(runs, align=align, bin_width=width, tolerance=tolerance)
+        _write_atomic(out, limits.dumps())
+        unit = "s" if limits.align == "time" else "mm"
+        shown = limits.bin_width if limits.align == "time" else limits.bin_width * 1e3
+        console.print(f"taught {limits.runs} runs: {limits.bins} bins of {shown:g} {unit} ({limits.align}), "
+                      f"channels {', '.join(limits.channels)}; collision/overload limit "
+                      f"{limits.force_limit_n:.1f} N; wrote {out}", markup=False)
