@@ -98,6 +98,8 @@ def test_too_short_a_cut_for_a_baseline(work, tmp_path):
 def test_bad_options_are_named(work, tmp_path):
     res = _detect(work, "good.csv", "--spindle-rpm", -5, "--json", tmp_path / "e.json")
     assert res.exit_code == 2 and "--spindle-rpm" in res.output
+    res = _detect(work, "good.csv", "--baseline-revs", 1, "--json", tmp_path / "e.json")
+    assert res.exit_code == 2 and "--baseline-revs" in res.output
     (tmp_path / "bad.json").write_text("{}")
     res = _detect(work, "good.csv", "--limits", tmp_path / "bad.json", "--json", tmp_path / "e.json")
     assert res.exit_code == 2 and "--limits" in res.output

@@ -113,6 +113,8 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--spindle-rpm must be > 0, got {spindle_rpm!r}")
         if teeth is not None and teeth < 1:
             raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
+        if baseline_revs < 3:
+            raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
         taught = None
         if limits is not None:
             try:

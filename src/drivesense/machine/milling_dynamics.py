@@ -342,6 +342,7 @@ def dynamic_milling_forces(tool: EndMill, coefficients: CuttingCoefficients, cut
     surf[:, :, 0] = -1e18                    # no pass yet
     out = [np.zeros(n) for _ in range(6)]
     _dynamic_loop(angle, c, fp, use_fp, exit_len, off, np.cos(off), np.sin(off), rad_a, rad_b, switch,
-                  phi_st, phi_ex, half_d, k, dz, nf / _TWO_PI, _CHIP_CAP, surf, surf.copy(), modes, phis, gams, len(modes), 1.0 / fs, *out)
+                  phi_st, phi_ex, half_d, k, dz, nf / _TWO_PI, _CHIP_CAP, surf, surf.copy(), modes, phis, gams,
+                  len(modes), 1.0 / fs, *out)
     return DynamicMillingResult(MillingForces(feed=out[0], normal=out[1], axial=out[2], torque=out[3]),
                                 out[4], out[5])

@@ -15,6 +15,7 @@ from drivesense.monitor.wear import (WearReport, WearState, WearTracker, WearTra
 __all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "track_wear", "percent_power_increase",
            "AdaptiveCadence", "CadenceSettings", "CadenceProposal", "propose_interval",
            "RunoutEstimate", "estimate_runout",
-           "Event", "Detection", "Detector", "DetectorStream", "BreakageDetector", "ChatterDetector", "OverloadDetector",
+           "Event", "Detection", "Detector", "DetectorStream", "BreakageDetector", "ChatterDetector",
+           "OverloadDetector",
            "TeachInDetector", "TeachLimits", "teach", "detector_inputs", "default_detectors", "run_detectors",
            "DetectionReport"]

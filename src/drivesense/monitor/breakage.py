@@ -60,8 +60,8 @@ def _accumulate(harm, weight, theta):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_min, baseline_revs, d_floor, sigmas,
-                   persist_n, level_drop, alpha, step_ratio, min_shift, sc, levels, ring_v, ring_r, ring_t, harm, heff, bins, ema_h, ema_b, snap_h, snap_b,
-                   stat, thr_out, ev_index, ev_data):  # pragma: no cover - numba
+                   persist_n, level_drop, alpha, step_ratio, min_shift, sc, levels, ring_v, ring_r, ring_t, harm,
+                   heff, bins, ema_h, ema_b, snap_h, snap_b, stat, thr_out, ev_index, ev_data):  # pragma: no cover - numba
     n = force.size
     cap = ring_v.size
     nb = bins.size
@@ -392,9 +392,10 @@ class BreakageDetector(Detector):
         cap = int(math.ceil(fs * 60.0 / self.min_rpm)) + 2
         nk = 2 * self.teeth if self.teeth > 1 else 2
         nb = _BINS_PER_TOOTH * self.teeth
-        return {"sc": np.zeros(17), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap), "ring_t": np.zeros(cap),
-                "harm": np.zeros(nk, dtype=complex), "heff": np.zeros(nk, dtype=complex), "bins": np.zeros(nb), "ema_h": np.zeros(nk, dtype=complex),
-                "ema_b": np.zeros(nb), "snap_h": np.zeros((6, nk), dtype=complex), "snap_b": np.zeros((6, nb)),
+        return {"sc": np.zeros(17), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
+                "ring_t": np.zeros(cap), "harm": np.zeros(nk, dtype=complex), "heff": np.zeros(nk, dtype=complex),
+                "bins": np.zeros(nb), "ema_h": np.zeros(nk, dtype=complex), "ema_b": np.zeros(nb),
+                "snap_h": np.zeros((6, nk), dtype=complex), "snap_b": np.zeros((6, nb)),
                 "fs": float(fs), "armed_ever": False, "cut_seen": False}
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
@@ -428,8 +429,9 @@ class BreakageDetector(Detector):
             if n else 1
         n_ev = _breakage_loop(force, raw, omega, feed_ok, moving, fs, self.teeth, state["harm"].size, self.gate_n,
                               self.min_rpm * _TWO_PI / 60.0, float(self.baseline_revs), self.threshold, self.sigmas,
-                              persist, self.level_drop, self.alpha, self.step_ratio, self.min_shift, state["sc"], state["levels"], state["ring_v"], state["ring_r"], state["ring_t"],
-                              state["harm"], state["heff"], state["bins"], state["ema_h"], state["ema_b"], state["snap_h"],
+                              persist, self.level_drop, self.alpha, self.step_ratio, self.min_shift, state["sc"],
+                              state["levels"], state["ring_v"], state["ring_r"], state["ring_t"], state["harm"],
+                              state["heff"], state["bins"], state["ema_h"], state["ema_b"], state["snap_h"],
                               state["snap_b"], stat, thr, ev_index, ev_data)
         state["armed_ever"] = state["armed_ever"] or bool(np.any(np.isfinite(thr)))
         state["cut_seen"] = state["cut_seen"] or bool(np.any(np.isfinite(stat))) or state["sc"][_CUTTING] > 0

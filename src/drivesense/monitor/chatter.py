@@ -63,8 +63,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc, ring, fring,
-                  levels, stat, thr_out, cand):  # pragma: no cover - numba
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc,
+                  ring, fring, levels, stat, thr_out, cand):  # pragma: no cover - numba
     n = force.size
     cap = ring.size
     nfr = fring.size
@@ -357,8 +357,8 @@ class ChatterDetector(Detector):
         fs = state["fs"]
         pos = 0
         while pos < n:
-            done = pos + _chatter_loop(force[pos:], omega[pos:], fs, state["sos"], state["lp"], self.gate_n, self.threshold,
-                                       self.hold_revs, self.window_revs, self.settle_revs, feed_ok[pos:], sc,
+            done = pos + _chatter_loop(force[pos:], omega[pos:], fs, state["sos"], state["lp"], self.gate_n,
+                                       self.threshold, self.hold_revs, self.window_revs, self.settle_revs, feed_ok[pos:], sc,
                                        state["ring"], state["fring"], state["levels"], stat[pos:], thr[pos:], cand)
             if done < n or cand[0] > 0.0:
                 if cand[0] > 0.0:

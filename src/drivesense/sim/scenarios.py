@@ -24,8 +24,8 @@ linear-motor simulator has the same switch
 from __future__ import annotations
 
 import math
-from functools import partial
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -369,7 +369,8 @@ def simulate_idle(cond: CutCondition, settings: ScenarioSettings | None = None, 
     """
     settings = _settings(settings, ideal)
     # the name holds the run index and its seed: runs of one call, and of calls with other seeds, differ
-    return [run_scenario(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}_seed{seed + k}") for k in range(repeats)]
+    return [run_scenario(cond, settings, seed + k, False, f"idle_{cond.name}_{k + 1}_seed{seed + k}")
+            for k in range(repeats)]
 
 
 def simulate_frf_excitation(kind: str = "multisine", settings: ScenarioSettings | None = None, *,
