@@ -174,14 +174,14 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
         if th >= sc[_NEXT_REV]:
             sc[_NEXT_REV] += _TWO_PI
             sc[_REVS] += 1.0
-            # the tooth-pass level once per revolution: a level that drifted by > 10 % between 12 and 3
+            # the tooth-pass level once per revolution: a level that drifted by > 10 % between 8 and 3
             # revolutions back is an entry or an exit, where the pattern changes without an event
             lk = int(sc[_LHEAD]) % levels.size
             levels[lk] = ht
             sc[_LHEAD] = lk + 1
-            if sc[_REVS] >= 12.0:
+            if sc[_REVS] >= 8.0:
                 recent = levels[(lk - 3) % levels.size]
-                old = levels[(lk - 12) % levels.size]
+                old = levels[(lk - 8) % levels.size]
                 sc[_DRIFT] = abs(recent / old - 1.0) if old > 0.0 else 1.0
             else:
                 sc[_DRIFT] = 0.0
@@ -267,6 +267,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             sc[_PERSIST] += 1.0
         else:
             sc[_PERSIST] = 0.0
+        if d <= sc[_THR]:
             # the statistic's level follows slow changes of the cut (entry, exit, wear): a running mean and
             # variance over about 10 revolutions, from samples below the threshold only
             a_s = dth / (10.0 * _TWO_PI)
@@ -275,33 +276,43 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             sc[_M2] = (1.0 - a_s) * (sc[_M2] + a_s * delta * delta)
             sc[_THR] = max(d_floor, sc[_MEAN] + sigmas * math.sqrt(sc[_M2]))
         if sc[_PERSIST] >= persist_n and n_ev < ev_index.size:
-            # which tooth lost how much: per-tooth sectors centred on the baseline's pulses
-            phase = -math.atan2(snap_h[2, teeth - 1].imag, snap_h[2, teeth - 1].real) / teeth
+            # which tooth lost how much: the revolution cut into one sector per tooth, at every rotation of
+            # the partition; a damaged tooth moves work from its sector to the next one at some rotation,
+            # a change every tooth shares (the part's edge notching every pulse) moves none at any
             worst = 0.0
             worst_j = 0
+            shift_o = 0
             shift = 0.0
             tot_now = 0.0
             tot_base = 0.0
             for b in range(nb):
                 tot_now += bins[b]
                 tot_base += snap_b[2, b]
-            for j in range(teeth):
-                now = 0.0
-                base = 0.0
-                for b in range(nb):
-                    centre = (b + 0.5) / nb * _TWO_PI
-                    rel = (centre - phase - j * _TWO_PI / teeth) % _TWO_PI
-                    if rel < math.pi / teeth or rel >= _TWO_PI - math.pi / teeth:
+            per = nb // teeth
+            for o in range(per):
+                o_shift = 0.0
+                o_worst = 0.0
+                o_j = 0
+                for j in range(teeth):
+                    now = 0.0
+                    base = 0.0
+                    for q in range(per):
+                        b = (o + j * per + q) % nb
                         now += bins[b]
                         base += snap_b[2, b]
-                if base > 0.0 and tot_now != 0.0 and tot_base != 0.0:
-                    loss = 1.0 - (now / tot_now) / (base / tot_base)
-                    moved = abs(now / tot_now - base / tot_base)
-                    if moved > shift:
-                        shift = moved
-                    if loss > worst:
-                        worst = loss
-                        worst_j = j
+                    if base > 0.0 and tot_now > 0.0 and tot_base > 0.0:
+                        moved = abs(now / tot_now - base / tot_base)
+                        loss = 1.0 - (now / tot_now) / (base / tot_base)
+                        if moved > o_shift:
+                            o_shift = moved
+                        if loss > o_worst:
+                            o_worst = loss
+                            o_j = j
+                if o_shift > shift:
+                    shift = o_shift
+                    worst = o_worst
+                    worst_j = o_j
+                    shift_o = o
             if shift < min_shift:
                 # every tooth kept its share of the work: the pattern changed for all teeth alike (the tool
                 # leaving the part notches every pulse), which no damaged tooth does
@@ -311,7 +322,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             ev_data[n_ev, 0] = min(worst, 1.0)
             ev_data[n_ev, 1] = d
             ev_data[n_ev, 2] = sc[_THR]
-            ev_data[n_ev, 3] = worst_j
+            ev_data[n_ev, 3] = ((shift_o + worst_j * per) % nb) * 360.0 / nb
             ev_data[n_ev, 4] = s_scale
             n_ev += 1
             sc[_LATCH] = 1.0
@@ -444,7 +455,7 @@ class BreakageDetector(Detector):
             evidence = {"edge_loss": float(round(loss, 4)), "statistic": float(d), "threshold": float(t),
                         "force_scale": float(scale)}
             if tooth >= 0:
-                evidence["tooth"] = int(tooth)
+                evidence["tooth_angle_deg"] = float(round(tooth, 1))   # where the damaged tooth's sector starts
             else:
                 evidence["rule"] = "force fell below level_drop of the baseline"
             events.append((start + int(ev_index[e]), kind, confidence, evidence))

@@ -277,14 +277,17 @@ class TeachInDetector(Detector):
         return tuple(self.limits.channels)
 
     def latency_s(self, fs: float) -> float:
-        """``persist_bins`` bins (time alignment), or as many bins of path at 1 mm/s [s].
+        """``persist_bins + 1`` bins: of time, or of path at the taught runs' median feed (1 mm/s if unknown) [s].
 
         Parameters
         ----------
         fs : float
             Sample rate [Hz].
         """
-        per_bin = self.limits.bin_width if self.limits.align == "time" else self.limits.bin_width / 1e-3
+        feed = 1e-3
+        if self.limits.feed is not None and np.any(self.limits.feed > 0):
+            feed = float(np.median(self.limits.feed[self.limits.feed > 0]))
+        per_bin = self.limits.bin_width if self.limits.align == "time" else self.limits.bin_width / feed
         return (self.persist_bins + 1) * per_bin
 
     def new_state(self, fs: float) -> dict:
