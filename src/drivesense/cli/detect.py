@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -56,18 +53,6 @@ def _teeth(rec, teeth: Optional[int]) -> Optional[int]:
     return int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def register(app: typer.Typer) -> None:
     """Add ``detect`` and ``teach`` to the root app."""
 
@@ -102,6 +87,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Detect process events (breakage, chipping, chatter, collision, overload, missing tool, teach-in limits)."""
         from drivesense.errors import ConfigError
+        from drivesense.io import read_json_file
         from drivesense.monitor import BreakageDetector, TeachLimits
         from drivesense.monitor.detector import events_to_json
         from drivesense.monitor.pipeline import default_detectors, run_detectors
@@ -115,12 +101,7 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
         if baseline_revs < 3:
             raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
-        taught = None
-        if limits is not None:
-            try:
-                taught = TeachLimits.from_json(json.loads(Path(limits).read_text()))
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise ConfigError(f"--limits {limits}: cannot read it ({exc})") from None
+        taught = None if limits is None else TeachLimits.from_json(read_json_file(limits, "--limits file"))
         est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                               axis_name=axis_name)
         read = trace_reader(fs, resample, assume_si, bad_samples)
@@ -191,6 +172,7 @@ def register(app: typer.Typer) -> None:
         bad_samples: BadSamplesOpt = None,
     ) -> None:
         """Learn teach-in bands (force and spindle power) from good runs of one NC program."""
+        from drivesense.io import write_json_file
         from drivesense.monitor import teach as teach_limits
 
         check_output(out, "--out")
@@ -203,7 +185,7 @@ def register(app: typer.Typer) -> None:
             resolved = "path" if all(any(c.endswith("_table_position") for c in r.channels) for r in runs) else "time"
         width = None if bin_width is None else (bin_width if resolved == "time" else bin_width * 1e-3)
         limits = teach_limits(runs, align=align, bin_width=width, tolerance=tolerance)
-        _write_atomic(out, limits.dumps())
+        write_json_file(out, limits.to_json())
         unit = "s" if limits.align == "time" else "mm"
         shown = limits.bin_width if limits.align == "time" else limits.bin_width * 1e3
         console.print(f"taught {limits.runs} runs: {limits.bins} bins of {shown:g} {unit} ({limits.align}), "

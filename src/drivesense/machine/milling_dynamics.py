@@ -229,8 +229,7 @@ def _zoh(modes: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return phis, gams
 
 
-def _radius_table(tool: EndMill, slices: int, damage: EdgeDamage | None, cut: MillingCut) -> tuple[np.ndarray,
-                                                                                                  np.ndarray]:
+def _radius_table(tool: EndMill, slices: int, damage: EdgeDamage | None) -> tuple[np.ndarray, np.ndarray]:
     """Flute radius per flute and axial slice before and after the damage [m]."""
     before = np.repeat(tool.flute_radii[:, None], slices, axis=1)
     after = before.copy()
@@ -320,7 +319,7 @@ def dynamic_milling_forces(tool: EndMill, coefficients: CuttingCoefficients, cut
     lag = z * math.tan(math.radians(tool.helix_deg)) / half_d
     off = np.mod(np.arange(nf)[:, None] * (_TWO_PI / nf) - lag[None, :], _TWO_PI)
     off = np.where(off >= _TWO_PI, 0.0, off)
-    rad_a, rad_b = _radius_table(tool, ns, damage, cut)
+    rad_a, rad_b = _radius_table(tool, ns, damage)
     switch = damage.sample if damage is not None else n
     if dynamics is not None:
         if not isinstance(dynamics, ToolDynamics):

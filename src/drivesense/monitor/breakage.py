@@ -111,13 +111,9 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             if outside > 0.0:
                 _accumulate(heff, -outside * tv / math.pi, tt)
         ht = 0.0
-        ho = 0.0
         for k in range(nk):
-            a2 = heff[k].real ** 2 + heff[k].imag ** 2
             if (k + 1) % teeth == 0:
-                ht += a2
-            else:
-                ho += a2
+                ht += heff[k].real ** 2 + heff[k].imag ** 2
         ht = math.sqrt(ht)
         stat[i] = np.nan
         thr_out[i] = np.nan

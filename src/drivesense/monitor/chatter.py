@@ -40,8 +40,8 @@ __all__ = ["ChatterDetector"]
 
 _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
-(_HEAD, _COUNT, _EE, _EF, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
- _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3) = range(24)
+(_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
+ _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3) = range(23)
 
 
 @njit(cache=True, nogil=True)
@@ -109,7 +109,6 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
         sc[_FHEAD] = (fh + 1) % nfr
         a = 1.0 / (window_revs * delay)
         sc[_MF] += a * (f - sc[_MF])
-        sc[_EF] += a * ((f - sc[_MF]) ** 2 - sc[_EF])
         # the comb's mean square over exactly window_revs (a moving window: a step of the force leaves
         # it as soon as the double comb has passed it, two revolutions on)
         length = max(1, int(window_revs * delay))
@@ -327,7 +326,7 @@ class ChatterDetector(Detector):
             raise ConfigError(f"chatter detector: the band {self.highpass_hz:g}-{top:g} Hz is empty "
                               f"(--highpass-hz, --highest-hz)")
         lp = scipy.signal.butter(2, top, btype="low", fs=fs, output="sos")[0]
-        return {"sc": np.zeros(24), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
+        return {"sc": np.zeros(23), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
                 "sos": np.ascontiguousarray(sos, dtype=float),
                 "lp": np.ascontiguousarray(lp, dtype=float), "fs": float(fs)}
 
