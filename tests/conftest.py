@@ -80,3 +80,13 @@ def linear_air_moves() -> tuple[Recording, ...]:
     from drivesense.sim.machining import simulate_air_moves
 
     return tuple(simulate_air_moves(seed=7))
+
+
+@pytest.fixture()
+def mosquitto():
+    """A real mosquitto broker on a free loopback port (stopped after the test)."""
+    from servers import Mosquitto
+
+    broker = Mosquitto()
+    yield broker
+    broker.stop()

@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from ..errors import ConfigError
+from .events import EVENTS_DDL
 from .sqlite import SQLArchive
 
 __all__ = ["PostgresStore", "is_postgres_dsn"]
@@ -96,7 +97,7 @@ class PostgresStore(SQLArchive):
         with self._write() as cur:
             cur.execute("SELECT pg_advisory_xact_lock(hashtext('drivesense archive schema'))")
             cur.execute(sql.SQL("CREATE SCHEMA IF NOT EXISTS {}").format(sql.Identifier(schema)))
-            for stmt in filter(str.strip, _DDL.split(";")):
+            for stmt in filter(str.strip, (_DDL + ";" + EVENTS_DDL).split(";")):
                 cur.execute(stmt)
 
     @contextmanager

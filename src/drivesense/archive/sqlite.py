@@ -31,6 +31,7 @@ from ..errors import ConfigError, DriveSenseError
 from ..io import write_recording
 from ..io.xml_format import Experiment, utc_now, write_xml
 from ..recording import META_ATTR, Recording
+from .events import EVENTS_DDL, EventsTable
 from .store import (CHUNK_SAMPLES, FILTER_KEYS, SearchHit, as_experiment, check_ranges, like_pattern,
                     missing, normalise_time, parse_query, prepare, rows_to_hits)
 
@@ -64,7 +65,7 @@ def _as_recording(arrays: dict[str, tuple[np.ndarray, str]], fs: float, t0: floa
     return Recording(ds, validate=False)
 
 
-class SQLArchive:
+class SQLArchive(EventsTable):
     """Backend-neutral archive logic over a DB-API connection (subclassed per database)."""
 
     location: str = ""
@@ -122,35 +123,39 @@ class SQLArchive:
             The source cannot be read (nothing is stored).
         """
         prep = prepare(as_experiment(source))
+        with self._write() as cur:
+            self._insert_experiment(cur, prep)
+        return prep.exp.id
+
+    def _insert_experiment(self, cur: Any, prep: Any) -> None:
+        """Insert one prepared experiment inside the caller's transaction."""
         exp, f = prep.exp, prep.fields
         recs = exp.recordings
-        with self._write() as cur:
-            if self._exec(cur, "SELECT 1 FROM experiments WHERE id = ?", (exp.id,)).fetchone():
-                raise ConfigError(f"experiment {exp.id!r} is already in the archive {self.location}; "
-                                  "remove it first to replace it")
-            row = (exp.id, f["created"], utc_now(), exp.format_version, f["name"],
-                   *(f[k] for k in _FIELDS), *(f[k].casefold() for k in _FIELDS), len(recs),
-                   sum(len(r.channels) for r in recs), sum(len(r.channels) * r.n_samples for r in recs),
-                   json.dumps(list(exp.personnel)))
-            pk = self._exec(cur, "INSERT INTO experiments(id, created, added, format_version, name, machine, "
-                            "tool, material, operator, machine_cf, tool_cf, material_cf, operator_cf, "
-                            "n_measurements, n_channels, n_samples, personnel) VALUES "
-                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING pk", row).fetchone()[0]
-            cur.executemany(self._q("INSERT INTO measurements VALUES (?, ?, ?, ?, ?, ?, ?)"),
-                            [(pk, *m) for m in prep.measurements])
-            cur.executemany(self._q("INSERT INTO channels VALUES (?, ?, ?, ?, ?, ?, ?, ?)"),
-                            [(pk, *c) for c in prep.channels])
-            if prep.states:
-                cur.executemany(self._q("INSERT INTO states VALUES (?, ?, ?, ?, ?)"),
-                                [(pk, *s) for s in prep.states])
-            self._index(cur, pk, prep.body)
-            for i, rec in enumerate(recs):
-                for j, ch in enumerate(rec.channels):
-                    data = np.ascontiguousarray(rec[ch], dtype="<f8")
-                    for seq, k in enumerate(range(0, data.size, CHUNK_SAMPLES)):
-                        self._exec(cur, "INSERT INTO samples VALUES (?, ?, ?, ?, ?)",
-                                   (pk, i, j, seq, memoryview(data[k:k + CHUNK_SAMPLES]).cast("B")))
-        return exp.id
+        if self._exec(cur, "SELECT 1 FROM experiments WHERE id = ?", (exp.id,)).fetchone():
+            raise ConfigError(f"experiment {exp.id!r} is already in the archive {self.location}; "
+                              "remove it first to replace it")
+        row = (exp.id, f["created"], utc_now(), exp.format_version, f["name"],
+               *(f[k] for k in _FIELDS), *(f[k].casefold() for k in _FIELDS), len(recs),
+               sum(len(r.channels) for r in recs), sum(len(r.channels) * r.n_samples for r in recs),
+               json.dumps(list(exp.personnel)))
+        pk = self._exec(cur, "INSERT INTO experiments(id, created, added, format_version, name, machine, "
+                        "tool, material, operator, machine_cf, tool_cf, material_cf, operator_cf, "
+                        "n_measurements, n_channels, n_samples, personnel) VALUES "
+                        "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING pk", row).fetchone()[0]
+        cur.executemany(self._q("INSERT INTO measurements VALUES (?, ?, ?, ?, ?, ?, ?)"),
+                        [(pk, *m) for m in prep.measurements])
+        cur.executemany(self._q("INSERT INTO channels VALUES (?, ?, ?, ?, ?, ?, ?, ?)"),
+                        [(pk, *c) for c in prep.channels])
+        if prep.states:
+            cur.executemany(self._q("INSERT INTO states VALUES (?, ?, ?, ?, ?)"),
+                            [(pk, *s) for s in prep.states])
+        self._index(cur, pk, prep.body)
+        for i, rec in enumerate(recs):
+            for j, ch in enumerate(rec.channels):
+                data = np.ascontiguousarray(rec[ch], dtype="<f8")
+                for seq, k in enumerate(range(0, data.size, CHUNK_SAMPLES)):
+                    self._exec(cur, "INSERT INTO samples VALUES (?, ?, ?, ?, ?)",
+                               (pk, i, j, seq, memoryview(data[k:k + CHUNK_SAMPLES]).cast("B")))
 
     def search(self, text: str | None = None, *, machine: str | None = None, tool: str | None = None,
                material: str | None = None, operator: str | None = None, since: Any = None,
@@ -460,7 +465,7 @@ class SqliteStore(SQLArchive):
             self._retry(lambda: self._conn.execute("PRAGMA journal_mode = WAL").fetchone())
             self._conn.execute(f"PRAGMA synchronous = {synchronous}")
             with self._write() as cur:
-                for stmt in filter(str.strip, _DDL.split(";")):
+                for stmt in filter(str.strip, (_DDL + ";" + EVENTS_DDL).split(";")):
                     cur.execute(stmt)
         except sqlite3.DatabaseError as exc:
             raise ConfigError(f"{self.path}: not a usable drivesense archive ({exc})") from None

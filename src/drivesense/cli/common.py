@@ -178,35 +178,14 @@ def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, a
     return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples)
 
 
-#: CLI option of each kind of method configuration, and the registry keyword it fills.
-_METHOD_OPTIONS = {"--axis": "axis", "--axes": "axes", "--model": "model"}
-
-
 def build_estimator(method: str, *, axis_file: Optional[Path] = None, axes_file: Optional[Path] = None,
                     model_dir: Optional[Path] = None, axis_name: str = "x"):
-    """Any registered method from the CLI's options (``--axis``, ``--axes`` or ``--model``).
+    """Any registered method from the CLI's options (``--axis``, ``--axes`` or ``--model``): see
+    :func:`drivesense.estimate.registry.make_from_files`."""
+    from drivesense.estimate.registry import make_from_files
 
-    Refuses, naming the options, a method given another method's configuration
-    or without its own.
-    """
-    from drivesense.errors import ConfigError
-    from drivesense.estimate import describe_methods, make
-
-    methods = describe_methods()
-    if method not in methods:
-        raise ConfigError(f"unknown method {method!r} (--method); choose one of {', '.join(methods)}")
-    info = methods[method]
-    given = {"--axis": axis_file, "--axes": axes_file, "--model": model_dir}
-    needed = info.needs.split()[0]
-    wrong = [opt for opt, value in given.items() if value is not None and opt != needed]
-    if wrong:
-        raise ConfigError(f"--method {method} takes {info.needs}, not {', '.join(wrong)}")
-    if given[needed] is None:
-        raise ConfigError(f"--method {method} needs {info.needs}")
-    config = {_METHOD_OPTIONS[needed]: given[needed]}
-    if info.drive == "ballscrew":
-        config["axis_name"] = axis_name
-    return make(method, **config)
+    return make_from_files(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
+                           axis_name=axis_name)
 
 
 def save_recording(rec, out: Path, *, parents: bool = False) -> None:

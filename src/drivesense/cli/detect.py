@@ -88,7 +88,7 @@ def register(app: typer.Typer) -> None:
         """Detect process events (breakage, chipping, chatter, collision, overload, missing tool, teach-in limits)."""
         from drivesense.errors import ConfigError
         from drivesense.io import read_json_file
-        from drivesense.monitor import BreakageDetector, TeachLimits
+        from drivesense.monitor import TeachLimits
         from drivesense.monitor.detector import events_to_json
         from drivesense.monitor.pipeline import default_detectors, run_detectors
 
@@ -121,10 +121,8 @@ def register(app: typer.Typer) -> None:
         for ax in axes:
             dets = default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=taught if ax == axes[0] else None,
                                      force_limit_n=force_limit if force_limit is not None else
-                                     (taught.force_limit_n if taught else None), band_hz=band)
-            for d in dets:
-                if isinstance(d, BreakageDetector):
-                    d.baseline_revs = baseline_revs
+                                     (taught.force_limit_n if taught else None), band_hz=band,
+                                     baseline_revs=baseline_revs)
             detectors += dets
         report = run_detectors(inputs, detectors)
         payload = events_to_json(report.events, report.latency_s)

@@ -24,7 +24,7 @@ from typing import Any, Callable
 from drivesense.errors import ConfigError
 from drivesense.estimate.base import ForceEstimator
 
-__all__ = ["MethodInfo", "register", "available", "make", "describe_methods", "is_path"]
+__all__ = ["MethodInfo", "register", "available", "make", "make_from_files", "describe_methods", "is_path"]
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,50 @@ def make(name: str, **config: Any) -> ForceEstimator:
     except TypeError as exc:
         raise ConfigError(f"method {name!r}: {exc} (it needs {info.needs or 'no configuration'})") from None
     return info.factory(**config)
+
+
+#: CLI option of each kind of method configuration, and the :func:`make` keyword it fills.
+FILE_OPTIONS = {"--axis": "axis", "--axes": "axes", "--model": "model"}
+
+
+def make_from_files(method: str, *, axis_file: Any = None, axes_file: Any = None, model_dir: Any = None,
+                    axis_name: str = "x", labels: dict | None = None) -> ForceEstimator:
+    """Any registered method from its configuration files (the CLI's ``--axis``, ``--axes`` or ``--model``).
+
+    Refuses, naming the options, a method given another method's configuration or without its own.
+
+    Parameters
+    ----------
+    method : str
+        Method name (``--method``).
+    axis_file : str or Path, optional
+        AXIS.toml of a ball-screw axis (``--axis``).
+    axes_file : str or Path, optional
+        AXES.toml of a linear-motor machine (``--axes``).
+    model_dir : str or Path, optional
+        Trained model folder (``--model``).
+    axis_name : str
+        Axis letter of a ball-screw method's channels.
+    labels : dict, optional
+        What to call ``--method``, ``--axis``, ``--axes`` and ``--model`` in messages (a config file's keys).
+    """
+    names = {k: (labels or {}).get(k, k) for k in ("--method", *FILE_OPTIONS)}
+    methods = describe_methods()
+    if method not in methods:
+        raise ConfigError(f"unknown method {method!r} ({names['--method']}); choose one of {', '.join(methods)}")
+    info = methods[method]
+    given = {"--axis": axis_file, "--axes": axes_file, "--model": model_dir}
+    needed = info.needs.split()[0]
+    needs = info.needs.replace(needed, names[needed], 1)
+    wrong = [names[opt] for opt, value in given.items() if value is not None and opt != needed]
+    if wrong:
+        raise ConfigError(f"{names['--method']} {method} takes {needs}, not {', '.join(wrong)}")
+    if given[needed] is None:
+        raise ConfigError(f"{names['--method']} {method} needs {needs}")
+    config: dict[str, Any] = {FILE_OPTIONS[needed]: given[needed]}
+    if info.drive == "ballscrew":
+        config["axis_name"] = axis_name
+    return make(method, **config)
 
 
 def is_path(value: Any) -> bool:

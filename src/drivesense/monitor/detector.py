@@ -350,6 +350,20 @@ class DetectorStream:
         self._t0 = float(t0)
         self._t0_fixed = False
 
+    def shift_time(self, seconds: float) -> None:
+        """Move the stream's clock by ``seconds`` [s]: the next chunk starts that much later than contiguous.
+
+        A live stream that lost chunks (or whose source clock jumped) keeps its detector state but must
+        still give events their true time.
+
+        Parameters
+        ----------
+        seconds : float
+            Time between the end of the last chunk and the start of the next, beyond one sample [s].
+        """
+        self._t0 += float(seconds)
+        self._t0_fixed = True
+
     def push(self, chunk: Recording | Mapping[str, Any]) -> Detection:
         """Detect in the next samples.
 

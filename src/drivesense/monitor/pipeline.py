@@ -94,7 +94,8 @@ def detector_inputs(trace: Recording, forces: Recording) -> Recording:
 def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float | None = None,
                       limits: TeachLimits | None = None, force_limit_n: float | None = None,
                       band_hz: float | None = None,
-                      kinds: Sequence[str] = ("breakage", "chatter", "overload", "teach-in")) -> list[Detector]:
+                      kinds: Sequence[str] = ("breakage", "chatter", "overload", "teach-in"),
+                      baseline_revs: int | None = None) -> list[Detector]:
     """The detectors ``drivesense detect`` runs on one axis.
 
     Parameters
@@ -113,10 +114,14 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
         The force estimate's bandwidth [Hz] (its low-pass): chatter is looked for below 0.8 of it.
     kinds : sequence of str
         Which detectors to consider.
+    baseline_revs : int, optional
+        Revolutions of each cut the breakage detector learns its baseline over (default: its own).
     """
     out: list[Detector] = []
     if "breakage" in kinds and teeth is not None:
         out.append(BreakageDetector(axis, teeth, spindle_rpm=spindle_rpm))
+        if baseline_revs is not None:
+            out[-1].baseline_revs = int(baseline_revs)
     if "chatter" in kinds:
         out.append(ChatterDetector(axis, spindle_rpm=spindle_rpm,
                                    highest_hz=None if band_hz is None else 0.8 * band_hz))

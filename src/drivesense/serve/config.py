@@ -1,0 +1,336 @@
+"""The monitor's configuration: ``drivesense monitor CONFIG.toml``.
+
+::
+
+    [service]
+    http = "127.0.0.1:8765"            # dashboard and API (optional)
+    events = "events.jsonl"            # append-only event log (fsync per event)
+    archive = "monitor.sqlite"         # events + signal segments (SQLite file or PostgreSQL DSN; optional)
+    mqtt = "mqtt://127.0.0.1:1883"     # alarms on {machine}/alarm, stop requests on {machine}/stop (optional)
+    webhook = "https://example.com/hook"   # each event POSTed as JSON (optional)
+    token_env = "DRIVESENSE_TOKEN"     # or token = "...": acknowledging and changing limits need it
+
+    [[machine]]
+    id = "vmc1"
+    teeth = 2                          # flutes (breakage, chipping)
+    spindle_rpm = 6000                 # when the signals carry no spindle_speed
+    source = { kind = "mqtt", url = "mqtt://127.0.0.1:1883", topic = "vmc1/drive" }
+
+    [[machine.axis]]
+    name = "x"
+    method = "vibration"
+    axis_file = "x_axis.toml"          # or axes_file (linear motors), model (lstm, hybrid)
+    idle = ["idle_1.csv", "idle_2.csv"]    # friction map; or tare_trace = "cut.csv" + tare = "0:0.5"
+    detectors = ["breakage", "chatter", "overload"]
+    force_limit = 300.0                # [N]
+    limits = "LIMITS.json"             # teach-in bands (drivesense teach)
+
+Sources: ``replay`` (``path``, ``speed``, ``loop``, ``chunk_s``), ``simulated``
+(``seed``, ``speed``, ``cut_s``, ``event_share``), ``mqtt`` (``url``,
+``topic``), ``mtconnect`` and ``opcua`` (:mod:`drivesense.serve.controllers`).
+Relative paths are read from the config file's folder.  Every error names
+the machine, the axis and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivesense.errors import ConfigError
+from drivesense.serve.machine import AxisPipeline, MachineMonitor
+from drivesense.serve.service import MachineSpec, MonitorService
+from drivesense.serve.sources import MQTTSource, ReplaySource, SimulatedSource, Source
+
+__all__ = ["MonitorConfig", "load_config", "build_axis", "parse_http", "SOURCE_KINDS"]
+
+#: Source kinds a config may name.
+SOURCE_KINDS = ("replay", "simulated", "mqtt", "mtconnect", "opcua")
+_DETECTORS = ("breakage", "chatter", "overload", "teach-in")
+
+
+@dataclass
+class MonitorConfig:
+    """A loaded configuration: the service's settings and its machines.
+
+    Attributes
+    ----------
+    machines : list of MachineSpec
+        The machines, their sources and pipelines.
+    http : tuple or None
+        ``(host, port)`` of the dashboard, or None.
+    events : Path or None
+        Event log.
+    archive : str or None
+        Archive location.
+    mqtt : str or None
+        Alarm broker.
+    webhook : str or None
+        Webhook URL.
+    token : str or None
+        Write token.
+    alarm_prefix : str
+        Topic prefix of the alarms.
+    """
+
+    machines: list
+    http: tuple | None = None
+    events: Path | None = None
+    archive: str | None = None
+    mqtt: str | None = None
+    webhook: str | None = None
+    token: str | None = field(default=None, repr=False)
+    alarm_prefix: str = ""
+
+    def service(self) -> MonitorService:
+        """The :class:`MonitorService` of this configuration."""
+        return MonitorService(self.machines, events_path=self.events, archive=self.archive, alarm_url=self.mqtt,
+                              alarm_prefix=self.alarm_prefix, webhook=self.webhook, token=self.token)
+
+
+def parse_http(text: str, what: str = "--http") -> tuple[str, int]:
+    """``HOST:PORT`` -> (host, port).
+
+    Parameters
+    ----------
+    text : str
+        The address.
+    what : str
+        Option or key named in errors.
+    """
+    host, sep, port = str(text).rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"{what} must be HOST:PORT (e.g. 127.0.0.1:8765), got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+def _get(table: dict, key: str, kinds, where: str, default: Any = None, *, check: Callable | None = None,
+         need: str = "") -> Any:
+    value = table.get(key, default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        raise ConfigError(f"{where}: '{key}' must be {need or kinds}, got {value!r}")
+    if check is not None and not check(value):
+        raise ConfigError(f"{where}: '{key}' must be {need}, got {value!r}")
+    return value
+
+
+def _number(table: dict, key: str, where: str, default: float | None = None, *, positive: bool = True):
+    return _get(table, key, (int, float), where, default, need="a positive number" if positive else "a number",
+                check=lambda v: math.isfinite(v) and (v > 0 or not positive))
+
+
+def _path(base: Path, value: Any, where: str, key: str) -> Path:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where}: '{key}' must be a file path, got {value!r}")
+    p = Path(value).expanduser()
+    p = p if p.is_absolute() else base / p
+    if not p.exists():
+        raise ConfigError(f"{where}: '{key}' file {p} does not exist")
+    return p
+
+
+def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str, teeth: int | None,
+               spindle_rpm: float | None, tare_trace: Any = None) -> AxisPipeline:
+    """One axis's fitted estimator and detectors from its config table (or the CLI's options).
+
+    Parameters
+    ----------
+    name : str
+        Axis letter.
+    spec : dict
+        ``method``, ``axis_file`` / ``axes_file`` / ``model``, ``idle`` or ``tare`` (+ ``tare_trace``),
+        ``detectors``, ``force_limit``, ``limits``, ``baseline_revs``.
+    base : Path
+        Folder relative paths are read from.
+    read : callable
+        ``read(path, axis_name)`` -> Recording.
+    where : str
+        Prefix of error messages (``machine 'vmc1' axis 'x'``).
+    teeth : int or None
+        Flutes of the tool.
+    spindle_rpm : float or None
+        Fixed spindle speed [min^-1].
+    tare_trace : Recording, optional
+        Trace the tare window is cut from when ``tare_trace`` is not in `spec` (``--replay``).
+    """
+    from drivesense.estimate.registry import make_from_files
+    from drivesense.io import read_json_file
+    from drivesense.monitor import TeachLimits
+    from drivesense.monitor.pipeline import default_detectors
+
+    method = _get(spec, "method", str, where, "vibration", need="a method name")
+    files = {k: (_path(base, spec[k], where, k) if spec.get(k) is not None else None)
+             for k in ("axis_file", "axes_file", "model")}
+    try:
+        est = make_from_files(method, axis_file=files["axis_file"], axes_file=files["axes_file"],
+                              model_dir=files["model"], axis_name=name,
+                              labels={"--method": f"{where}: method", "--axis": "axis_file", "--axes": "axes_file",
+                                      "--model": "model"})
+    except ConfigError as exc:
+        raise ConfigError(str(exc) if str(exc).startswith(where) else f"{where}: {exc}") from None
+    idle = spec.get("idle")
+    tare = _get(spec, "tare", str, where, need="START:END [s]")
+    if est.drive == "ballscrew":
+        if idle and tare:
+            raise ConfigError(f"{where}: give either 'idle' runs or 'tare', not both")
+        if idle:
+            if isinstance(idle, str):
+                idle = [idle]
+            est.fit([read(_path(base, p, where, "idle"), name) for p in idle])
+        elif tare:
+            start, _, end = tare.partition(":")
+            try:
+                window = (float(start), float(end))
+            except ValueError:
+                raise ConfigError(f"{where}: 'tare' must be START:END [s], got {tare!r}") from None
+            trace = (read(_path(base, spec["tare_trace"], where, "tare_trace"), name)
+                     if spec.get("tare_trace") else tare_trace)
+            if trace is None:
+                raise ConfigError(f"{where}: 'tare' needs 'tare_trace' (a trace of the standing axis)")
+            est.tare(trace, *window)
+        else:
+            raise ConfigError(f"{where}: method {method} needs 'idle' runs (friction map) or 'tare' (--idle or "
+                              f"--tare): without them the friction would be taken for process force")
+    kinds = _get(spec, "detectors", list, where, list(_DETECTORS), need=f"a list of {', '.join(_DETECTORS)}")
+    bad = [k for k in kinds if k not in _DETECTORS]
+    if bad:
+        raise ConfigError(f"{where}: unknown detector(s) {', '.join(map(str, bad))} in 'detectors' "
+                          f"(known: {', '.join(_DETECTORS)})")
+    limits = spec.get("limits")
+    taught = None if limits is None else TeachLimits.from_json(read_json_file(_path(base, limits, where, "limits"),
+                                                                              "limits file"))
+    force_limit = _number(spec, "force_limit", where)
+    baseline = _get(spec, "baseline_revs", int, where, need="an integer >= 3", check=lambda v: v >= 3)
+    band = getattr(getattr(est, "signal", None), "lpf_hz", None)
+    detectors = default_detectors(name, teeth=teeth, spindle_rpm=spindle_rpm, limits=taught,
+                                  force_limit_n=force_limit, band_hz=band, kinds=kinds, baseline_revs=baseline)
+    if not detectors:
+        raise ConfigError(f"{where}: no detector to run: give 'teeth' for breakage, 'force_limit' or 'limits' for "
+                          f"overload")
+    return AxisPipeline(name, est, detectors)
+
+
+def _source(machine: str, spec: Any, base: Path, read: Callable, where: str) -> Source:
+    if not isinstance(spec, dict) or not isinstance(spec.get("kind"), str):
+        raise ConfigError(f"{where}: 'source' must be a table with a 'kind' ({', '.join(SOURCE_KINDS)})")
+    kind = spec["kind"]
+    where = f"{where} source"
+    if kind == "replay":
+        rec = read(_path(base, spec.get("path"), where, "path"), spec.get("axis_name", "x"))
+        return ReplaySource(machine, rec, speed=_number(spec, "speed", where, 1.0, positive=False),
+                            chunk_s=_number(spec, "chunk_s", where, 0.05),
+                            loop=_get(spec, "loop", int, where, 1, need="an integer >= 1", check=lambda v: v >= 1))
+    if kind == "simulated":
+        return SimulatedSource(machine, seed=_get(spec, "seed", int, where, 1, need="an integer"),
+                               speed=_number(spec, "speed", where, 1.0, positive=False),
+                               cut_s=_number(spec, "cut_s", where, 4.0),
+                               event_share=_number(spec, "event_share", where, 0.3, positive=False))
+    if kind == "mqtt":
+        return MQTTSource(machine, _get(spec, "url", str, where, need="mqtt://HOST[:PORT]") or "",
+                          _get(spec, "topic", str, where, need="a topic"))
+    if kind in ("mtconnect", "opcua"):
+        from drivesense.serve import controllers
+
+        options = {k: v for k, v in spec.items() if k != "kind"}
+        cls = controllers.MTConnectSource if kind == "mtconnect" else controllers.OPCUASource
+        try:
+            return cls(machine, **options)
+        except TypeError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    raise ConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(SOURCE_KINDS)})")
+
+
+def _machine(spec: Any, base: Path, read: Callable) -> MachineSpec:
+    if not isinstance(spec, dict) or not isinstance(spec.get("id"), str) or not spec["id"]:
+        raise ConfigError("every [[machine]] needs an 'id' (a string)")
+    mid = spec["id"]
+    where = f"machine '{mid}'"
+    teeth = _get(spec, "teeth", int, where, need="an integer >= 1", check=lambda v: v >= 1)
+    rpm = _number(spec, "spindle_rpm", where)
+    source = _source(mid, spec.get("source"), base, read, where)
+    if isinstance(source, SimulatedSource) and not spec.get("axis"):
+        from drivesense.serve.demo import demo_monitor
+
+        return MachineSpec(mid, source, demo_monitor(mid))
+    axes = spec.get("axis")
+    if not isinstance(axes, list) or not axes:
+        raise ConfigError(f"{where}: name at least one [[machine.axis]] (name, method, axis_file, idle or tare)")
+    pipelines = []
+    for a in axes:
+        name = a.get("name") if isinstance(a, dict) else None
+        if not isinstance(name, str) or not name:
+            raise ConfigError(f"{where}: every [[machine.axis]] needs a 'name' (the axis letter)")
+        pipelines.append(build_axis(name, a, base=base, read=read, where=f"{where} axis '{name}'", teeth=teeth,
+                                    spindle_rpm=rpm))
+    history = _number(spec, "history_s", where, 10.0)
+    return MachineSpec(mid, source, MachineMonitor(mid, pipelines, history_s=history))
+
+
+def load_config(path: str | Path, *, read: Callable | None = None,
+                only: Sequence[str] | None = None) -> MonitorConfig:
+    """Read a monitor configuration (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+    read : callable, optional
+        ``read(path, axis_name)`` -> Recording for traces (default :func:`drivesense.io.read_recording`).
+    only : sequence of str, optional
+        Build only these machine ids.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, the machine, the axis and the key that is wrong.
+    """
+    from drivesense.io import read_recording
+
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    read = read or (lambda p, axis: read_recording(p, axis=axis) if Path(p).suffix.lower() == ".csv"
+                    else read_recording(p))
+    base = path.parent
+    svc = doc.get("service", {})
+    if not isinstance(svc, dict):
+        raise ConfigError(f"{path}: [service] must be a table")
+    where = f"{path} [service]"
+    unknown = sorted(set(svc) - {"http", "events", "archive", "mqtt", "webhook", "token", "token_env",
+                                 "alarm_prefix"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}")
+    token = _get(svc, "token", str, where, need="a string")
+    env = _get(svc, "token_env", str, where, need="an environment variable name")
+    if env:
+        token = os.environ.get(env) or token
+        if not token:
+            raise ConfigError(f"{where}: 'token_env' names {env}, which is not set")
+    http = parse_http(svc["http"], f"{where} 'http'") if svc.get("http") else None
+    events = svc.get("events")
+    events = None if events is None else (Path(events) if Path(events).is_absolute() else base / events)
+    archive = svc.get("archive")
+    if isinstance(archive, str) and "://" not in archive and "=" not in archive and not Path(archive).is_absolute():
+        archive = str(base / archive)
+    machines = doc.get("machine")
+    if not isinstance(machines, list) or not machines:
+        raise ConfigError(f"{path}: no [[machine]] table: name at least one machine to monitor")
+    try:
+        specs = [_machine(m, base, read) for m in machines if only is None or m.get("id") in only]
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return MonitorConfig(specs, http=http, events=events, archive=archive,
+                         mqtt=_get(svc, "mqtt", str, where, need="mqtt://HOST[:PORT]"),
+                         webhook=_get(svc, "webhook", str, where, need="a URL"), token=token,
+                         alarm_prefix=_get(svc, "alarm_prefix", str, where, "", need="a topic prefix"))

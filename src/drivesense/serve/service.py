@@ -1,0 +1,438 @@
+"""The live monitor service: per machine, source -> bounded queue -> estimators and detectors -> outputs.
+
+::
+
+    service = MonitorService([MachineSpec("vmc1", ReplaySource(...), MachineMonitor(...))],
+                             events_path="events.jsonl", alarm_url="mqtt://127.0.0.1:1883")
+    await service.run(stop)            # until stop is set (or every finite source is played out)
+
+One asyncio loop runs everything.  Each machine has a source task and a
+worker task joined by a bounded queue: a source that outruns the worker waits
+(backpressure), it never piles up memory.  A source that fails is restarted
+after a back-off (1 s growing to 10 s) while the other machines go on; a
+chunk that cannot be used is counted against its machine.  Events are
+logged (fsync) first, then published.  Dashboard subscribers get frames
+through queues of two: a slow browser loses frames, never events (those it
+can re-read with ``/api/events?since=``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivesense.errors import ConfigError, MissingChannelError
+from drivesense.serve.machine import MachineMonitor
+from drivesense.serve.outputs import AlarmPublisher, ArchiveWriter, EventLog, Webhook
+from drivesense.serve.sources import Source
+
+__all__ = ["MachineSpec", "MonitorService", "Subscriber"]
+
+#: Chunks queued per machine before its source waits.
+QUEUE_CHUNKS = 64
+#: Dashboard frame period [s].
+FRAME_PERIOD_S = 0.2
+
+
+@dataclass
+class MachineSpec:
+    """A machine the service watches.
+
+    Attributes
+    ----------
+    id : str
+        Machine id.
+    source : Source
+        Where its signals come from.
+    monitor : MachineMonitor
+        Its estimators and detectors.
+    state : str
+        ``starting``, ``running``, ``reconnecting``, ``finished`` or ``stopped`` (set by the service).
+    restarts : int
+        Times its source was restarted after a failure.
+    source_error : str or None
+        The last failure of its source.
+    queue : asyncio.Queue or None
+        Its chunk queue while the service runs.
+    tasks : list
+        Its source and worker tasks while the service runs.
+    """
+
+    id: str
+    source: Source
+    monitor: MachineMonitor
+    state: str = "starting"
+    restarts: int = 0
+    source_error: str | None = None
+    queue: Any = None
+    tasks: list = field(default_factory=list)
+
+
+class Subscriber:
+    """A dashboard client: a queue of two frames (old ones dropped) and a bounded queue of events.
+
+    Parameters
+    ----------
+    max_events : int
+        Events queued before the client counts as gone (it re-reads ``/api/events``).
+    """
+
+    def __init__(self, max_events: int = 1000) -> None:
+        self.frames: asyncio.Queue = asyncio.Queue(maxsize=2)
+        self.events: asyncio.Queue = asyncio.Queue(maxsize=max_events)
+        self.dropped_frames = 0
+        self.overflow = False
+
+    def offer_frame(self, frame: dict) -> None:
+        """Queue a frame, dropping the oldest when full.
+
+        Parameters
+        ----------
+        frame : dict
+            The frame.
+        """
+        if self.frames.full():
+            self.frames.get_nowait()
+            self.dropped_frames += 1
+        self.frames.put_nowait(frame)
+
+    def offer_event(self, record: dict) -> None:
+        """Queue an event (a client that let 1000 pile up is marked ``overflow``).
+
+        Parameters
+        ----------
+        record : dict
+            The event record.
+        """
+        try:
+            self.events.put_nowait(record)
+        except asyncio.QueueFull:
+            self.overflow = True
+
+
+class MonitorService:
+    """The service: machines, outputs, the dashboard's view of them.
+
+    Parameters
+    ----------
+    machines : list of MachineSpec
+        What to watch (ids unique).
+    events_path : Path, optional
+        JSONL event log (``--events``); None keeps events in memory.
+    archive : str or Path, optional
+        Archive (SQLite file or PostgreSQL DSN) for events and their segments.
+    alarm_url : str, optional
+        ``mqtt://HOST[:PORT]`` for alarms and stop requests.
+    alarm_prefix : str
+        Topic prefix of the alarms.
+    webhook : str, optional
+        URL each event is POSTed to.
+    token : str, optional
+        Secret that acknowledging alarms and changing limits need (no token: read-only).
+    queue_chunks : int
+        Chunks queued per machine.
+    """
+
+    def __init__(self, machines: list[MachineSpec], *, events_path: str | Path | None = None,
+                 archive: str | Path | None = None, alarm_url: str | None = None, alarm_prefix: str = "",
+                 webhook: str | None = None, token: str | None = None, queue_chunks: int = QUEUE_CHUNKS) -> None:
+        ids = [m.id for m in machines]
+        if not machines:
+            raise ConfigError("no machine to monitor: name at least one [[machine]] in the config")
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ConfigError(f"machine id(s) {', '.join(dup)} given twice in the config")
+        self.machines = {m.id: m for m in machines}
+        self.log = EventLog(events_path)
+        self.archive_location = archive
+        self.alarm_url = alarm_url
+        self.alarm_prefix = alarm_prefix
+        self.webhook_url = webhook
+        self.token = token or None
+        self.queue_chunks = int(queue_chunks)
+        self.started = time.time()
+        self.counts: Counter = Counter()
+        self.subscribers: set[Subscriber] = set()
+        self.alarms: AlarmPublisher | None = None
+        self.webhook: Webhook | None = None
+        self.archive: ArchiveWriter | None = None
+        self.running = False
+        #: Callables ``f(record)`` called with every newly logged event (the CLI prints them).
+        self.listeners: list = []
+
+    # ------------------------------------------------------------------ run
+    async def run(self, stop: asyncio.Event | None = None, *, until_finished: bool = False) -> None:
+        """Watch every machine until ``stop`` is set (or, with ``until_finished``, every source is played out).
+
+        Parameters
+        ----------
+        stop : asyncio.Event, optional
+            Set to shut down (outputs are flushed and closed).
+        until_finished : bool
+            Return once every source has finished and its queue is drained.
+        """
+        stop = stop or asyncio.Event()
+        self._open_outputs()
+        self.running = True
+        for m in self.machines.values():
+            m.queue = asyncio.Queue(maxsize=self.queue_chunks)
+            m.tasks = [asyncio.create_task(self._source_loop(m, stop), name=f"source-{m.id}"),
+                       asyncio.create_task(self._worker(m), name=f"worker-{m.id}")]
+        frames = asyncio.create_task(self._frames(stop), name="frames")
+        try:
+            while not stop.is_set():
+                if until_finished and all(m.source.finished and m.queue.empty() and m.state != "processing"
+                                          for m in self.machines.values()):
+                    break
+                try:
+                    await asyncio.wait_for(stop.wait(), 0.05)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            stop.set()
+            for m in self.machines.values():
+                m.tasks[0].cancel()
+            for m in self.machines.values():
+                await m.queue.put(None)               # the worker drains what is queued, then ends
+            await asyncio.gather(*(t for m in self.machines.values() for t in m.tasks), return_exceptions=True)
+            frames.cancel()
+            self.running = False
+            self._close_outputs()
+
+    def _open_outputs(self) -> None:
+        if self.alarm_url:
+            self.alarms = AlarmPublisher(self.alarm_url, prefix=self.alarm_prefix)
+        if self.webhook_url:
+            self.webhook = Webhook(self.webhook_url)
+        if self.archive_location is not None:
+            self.archive = ArchiveWriter(self.archive_location)
+            self.counts["archive_caught_up"] += self.archive.catch_up(list(self.log.recent))
+
+    def _close_outputs(self) -> None:
+        if self.archive is not None:
+            for m in self.machines.values():
+                for r in m.monitor.pending_segments():
+                    self.archive.offer((r, None))
+            self.archive.close()
+        if self.webhook is not None:
+            self.webhook.close()
+        if self.alarms is not None:
+            self.alarms.close()
+        self.log.close()
+
+    async def _source_loop(self, m: MachineSpec, stop: asyncio.Event) -> None:
+        backoff = 1.0
+        while not stop.is_set() and not m.source.finished:
+            m.state = "running"
+            try:
+                await m.source.run(m.queue.put, stop)
+                backoff = 1.0
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - one machine's source failing never stops the others
+                m.source_error = f"{type(exc).__name__}: {exc}"
+                m.restarts += 1
+                m.state = "reconnecting"
+                try:
+                    await asyncio.wait_for(stop.wait(), backoff)
+                except asyncio.TimeoutError:
+                    pass
+                backoff = min(10.0, backoff * 2)
+        m.state = "finished" if m.source.finished else "stopped"
+
+    async def _worker(self, m: MachineSpec) -> None:
+        while True:
+            item = await m.queue.get()
+            if item is None:
+                return
+            if isinstance(item, Exception):
+                m.monitor.reject(str(item))
+                continue
+            try:
+                records = m.monitor.process(item)
+            except Exception as exc:  # noqa: BLE001 - a bug on one machine's data never stops the service
+                m.monitor.reject(f"{type(exc).__name__}: {exc}")
+                continue
+            for rec in records:
+                self._emit(rec)
+            if self.archive is not None:
+                for rec, seg in m.monitor.take_segments():
+                    self.archive.offer((rec, seg))
+            if m.queue.empty():
+                await asyncio.sleep(0)                # let the sources and the web server run
+
+    def _emit(self, record: dict) -> None:
+        logged = self.log.append(record)
+        if logged is None:
+            self.counts["events_repeated"] += 1
+            return
+        self.counts[f"events_{record['kind']}"] += 1
+        if self.alarms is not None:
+            self.alarms.publish(logged)
+        if self.webhook is not None:
+            self.webhook.offer(logged)
+        for sub in list(self.subscribers):
+            sub.offer_event({**logged, "acknowledged": False})
+        for listener in self.listeners:
+            listener(logged)
+
+    async def _frames(self, stop: asyncio.Event) -> None:
+        while not stop.is_set():
+            await asyncio.sleep(FRAME_PERIOD_S)
+            if not self.subscribers:
+                continue
+            frame = {"type": "frame", "time": time.time(),
+                     "machines": {mid: {"force": m.monitor.force_history(2.0, max_points=400),
+                                        "status": self.machine_status(mid)}
+                                  for mid, m in self.machines.items()}}
+            for sub in list(self.subscribers):
+                sub.offer_frame(frame)
+
+    # ------------------------------------------------------------------ the dashboard's view
+    def subscribe(self) -> Subscriber:
+        """A new dashboard subscriber (call :meth:`unsubscribe` when it leaves)."""
+        sub = Subscriber()
+        self.subscribers.add(sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscriber) -> None:
+        """Forget a subscriber.
+
+        Parameters
+        ----------
+        sub : Subscriber
+            From :meth:`subscribe`.
+        """
+        self.counts["frames_dropped"] += sub.dropped_frames
+        self.subscribers.discard(sub)
+
+    def machine(self, machine_id: str) -> MachineSpec:
+        """A machine by id.
+
+        Parameters
+        ----------
+        machine_id : str
+            The id.
+
+        Raises
+        ------
+        MissingChannelError
+            No such machine (a ``KeyError``).
+        """
+        if machine_id not in self.machines:
+            raise MissingChannelError(f"no machine {machine_id!r} (machines: {', '.join(self.machines)})")
+        return self.machines[machine_id]
+
+    def machine_status(self, machine_id: str) -> dict:
+        """Status of one machine: source, state, counters, detector statistics and limits.
+
+        Parameters
+        ----------
+        machine_id : str
+            The id.
+        """
+        m = self.machine(machine_id)
+        return {**m.monitor.status(), "state": m.state, "source": m.source.describe(), "restarts": m.restarts,
+                "source_error": m.source_error, "queue": m.queue.qsize() if m.queue is not None else 0,
+                "queue_max": self.queue_chunks}
+
+    def events(self, since: int = 0, limit: int = 1000) -> list[dict]:
+        """Logged events after ``since`` (their ``seq``), oldest first.
+
+        Parameters
+        ----------
+        since : int
+            Last seq the caller has.
+        limit : int
+            At most this many.
+        """
+        return self.log.since(since, limit)
+
+    def check_token(self, given: str | None) -> bool:
+        """Whether a write may proceed: a token is configured and ``given`` equals it (constant-time).
+
+        Parameters
+        ----------
+        given : str or None
+            The token the request carried.
+        """
+        if self.token is None or not given:
+            return False
+        return hmac.compare_digest(self.token.encode(), str(given).encode())
+
+    def acknowledge(self, event_id: str, by: str = "") -> dict:
+        """Acknowledge an alarm (logged).
+
+        Parameters
+        ----------
+        event_id : str
+            The event's id.
+        by : str
+            Who.
+        """
+        return self.log.acknowledge(event_id, by)
+
+    def set_force_limit(self, machine_id: str, axis: str, limit_n: float) -> dict:
+        """Change an axis's collision/overload limit while running.
+
+        Parameters
+        ----------
+        machine_id : str
+            Machine id.
+        axis : str
+            Axis letter.
+        limit_n : float
+            New limit [N].
+        """
+        mon = self.machine(machine_id).monitor
+        mon.set_force_limit(axis, limit_n)
+        return mon.limits()
+
+    def metrics(self) -> str:
+        """Prometheus text exposition: samples, chunks, rejects, gaps, queue depths, lag, events, alarms."""
+        lines: list[str] = []
+
+        def metric(name: str, kind: str, help_: str, values: list[tuple[dict, float]]) -> None:
+            lines.append(f"# HELP drivesense_{name} {help_}")
+            lines.append(f"# TYPE drivesense_{name} {kind}")
+            for labels, v in values:
+                lab = ",".join(f'{k}="{_esc(str(val))}"' for k, val in labels.items())
+                lines.append(f"drivesense_{name}{{{lab}}} {float(v):.9g}" if lab else f"drivesense_{name} {float(v):.9g}")
+
+        ms = self.machines.values()
+        metric("samples_total", "counter", "Samples processed per machine.",
+               [({"machine": m.id}, m.monitor.samples) for m in ms])
+        metric("chunks_total", "counter", "Chunks processed per machine.",
+               [({"machine": m.id}, m.monitor.chunks) for m in ms])
+        metric("rejected_total", "counter", "Chunks or messages refused per machine.",
+               [({"machine": m.id}, m.monitor.rejected) for m in ms])
+        metric("gaps_total", "counter", "Chunks missing from a machine's sequence.",
+               [({"machine": m.id}, m.monitor.gaps) for m in ms])
+        metric("queue_depth", "gauge", "Chunks waiting per machine.",
+               [({"machine": m.id}, m.queue.qsize() if m.queue is not None else 0) for m in ms])
+        metric("lag_seconds", "gauge", "Arrival to end of processing of the last chunk.",
+               [({"machine": m.id}, m.monitor.lag_s) for m in ms])
+        metric("busy_seconds_total", "counter", "Processing time per machine.",
+               [({"machine": m.id}, m.monitor.busy_s) for m in ms])
+        metric("source_restarts_total", "counter", "Source reconnects per machine.",
+               [({"machine": m.id}, m.restarts) for m in ms])
+        kinds = sorted(k[7:] for k in self.counts if k.startswith("events_") and k != "events_repeated")
+        metric("events_total", "counter", "Events logged, by kind.",
+               [({"kind": k}, self.counts[f"events_{k}"]) for k in kinds])
+        metric("alarms_published_total", "counter", "Alarms published to MQTT.",
+               [({}, self.alarms.published if self.alarms else 0)])
+        metric("webhook_failures_total", "counter", "Webhook posts that failed.",
+               [({}, self.webhook.failed if self.webhook else 0)])
+        metric("dashboard_frames_dropped_total", "counter", "Frames a slow dashboard client did not get.",
+               [({}, self.counts["frames_dropped"] + sum(s.dropped_frames for s in self.subscribers))])
+        metric("uptime_seconds", "gauge", "Seconds since the service started.", [({}, time.time() - self.started)])
+        return "\n".join(lines) + "\n"
+
+
+def _esc(value: str) -> str:
+    return value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
