@@ -45,6 +45,7 @@ class Mosquitto:
         self.binary = require_binary("mosquitto", "/usr/sbin/mosquitto")
         self.port = free_port()
         self.dir = Path(tempfile.mkdtemp(prefix="ds-mosquitto-"))
+        self.dir.chmod(0o777)                  # run as root, mosquitto drops to its own user: it must write here
         (self.dir / "mosquitto.conf").write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence true\n"
             f"persistence_location {self.dir}/\nmax_queued_messages 100000\n")

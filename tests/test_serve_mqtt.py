@@ -136,10 +136,11 @@ def test_alarms_and_stop_requests_survive_garbage_and_a_broker_restart(mosquitto
                and time.time() < deadline):
             time.sleep(0.05)
         st = svc.machine_status("m")
-        assert st["rejected"] == len(garbage) + 1              # the five bad messages and the repeated seq 0
-        # every chunk is either processed or counted as a gap (a broker restart can drop the QoS 1 messages it
-        # had in flight to the service), and the events after a gap keep their true time (checked above)
-        assert st["samples"] + 500 * st["gaps"] == 3 * 40_000 and st["samples"] >= 2 * 40_000
+        # the five bad messages and the repeated seq 0 are refused, and so is any chunk the restarted broker
+        # delivers a second time (QoS 1 is at-least-once); the broker's persistence keeps what it had queued:
+        # no chunk is lost
+        assert st["rejected"] >= len(garbage) + 1
+        assert st["samples"] == 3 * 40_000 and st["gaps"] == 0
         ids = [e["id"] for e in svc.events()]
         assert len(ids) == len(set(ids)) and {e["kind"] for e in svc.events()} == {"breakage", "collision"}
         assert svc.alarms.published == len(ids)
