@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError
-from drivesense.serve import (Chunk, MachineMonitor, MachineSpec, MonitorService, ReplaySource, WireError,
+from drivesense.serve import (Chunk, MachineSpec, MonitorService, ReplaySource, WireError,
                               decode_chunk, encode_chunk)
 from drivesense.serve.machine import FeedSpeedStream, Ring
 from drivesense.serve.outputs import EventLog

@@ -186,9 +186,10 @@ idle = ["idle0.nc", "idle1.nc", "idle2.nc"]
 force_limit = 400
 """)
     listener = Listener(mosquitto.port)
-    # the service's persistent session (client id drivesense-vmc1) exists before it starts, as after any earlier
+    # the service's persistent session (its client id) exists before it starts, as after any earlier
     # run: the broker keeps what is published meanwhile, so no chunk is lost however slowly the service starts
-    session = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="drivesense-vmc1", clean_session=False)
+    session = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=MQTTSource("vmc1", mosquitto.url).client_id,
+                          clean_session=False)
     session.connect("127.0.0.1", mosquitto.port)
     session.loop_start()
     session.subscribe("plant/vmc1/drive", qos=1)[1]
@@ -201,7 +202,8 @@ force_limit = 400
     try:
         assert service.poll() is None, service.stdout.read()
         pub = subprocess.run([*cli, "publish", str(tmp_path / "cut.nc"), "--mqtt", mosquitto.url, "--machine", "vmc1",
-                              "--topic", "plant/vmc1/drive", "--speed", "0"], capture_output=True, text=True, timeout=120)
+                              "--topic", "plant/vmc1/drive", "--speed", "0"], capture_output=True, text=True,
+                             timeout=120)
         assert pub.returncode == 0, pub.stdout + pub.stderr
         assert "published 80 chunk(s), 40000 samples" in pub.stdout
         alarm = listener.wait("alarm", "breakage", timeout=60)

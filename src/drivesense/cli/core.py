@@ -317,7 +317,8 @@ def friction(
 @app.command()
 @friendly
 def bench(
-    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | events | all")] = "all",
+    kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | events | "
+                                              "monitor | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
@@ -351,7 +352,7 @@ def bench(
         console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
                       f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions",
                       markup=False)
-    for part in ("wear", "io", "learn", "nc", "events"):
+    for part in ("wear", "io", "learn", "nc", "events", "monitor"):
         if part in result and isinstance(result[part], dict):
             _print_targets(part, result[part])
     write_json(json_path, result)
@@ -365,6 +366,11 @@ def _print_targets(part: str, section: dict) -> None:
         for name, t in targets.items():
             table.add_row(name, f"{t.get('value', '')!s:.8}", str(t.get("target", "")),
                           "met" if t.get("met") else "NOT met")
+    elif isinstance(targets, list) and all(isinstance(t, dict) for t in targets):
+        for t in targets:
+            measured = t.get("measured")
+            shown = f"{measured:.4g}" if isinstance(measured, float) else str(measured)
+            table.add_row(escape(str(t.get("target", ""))), escape(shown[:40]), "met" if t.get("met") else "NOT met")
     else:
         for name, value in section.items():
             if isinstance(value, (int, float)):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -84,7 +85,8 @@ async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, dura
 
 def _print_event(record: dict) -> None:
     console.print(f"[bold red]{record['kind']}[/] machine {escape(record['machine'])} axis {escape(record['axis'])} "
-                  f"at {record['time_s']:.4f} s (confidence {record['confidence']:.2f})", highlight=False)
+                  f"at {record['time_s']:.4f} s (confidence {record['confidence']:.2f})", highlight=False,
+                  soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:
@@ -167,18 +169,23 @@ def register(app: typer.Typer) -> None:
         if cfg.http is not None:
             _need("fastapi")
             _need("uvicorn")
+            import drivesense.serve.web  # noqa: F401  (imported now, not inside the running loop)
         if cfg.mqtt is not None or any(m.source.kind == "mqtt" for m in cfg.machines):
             _need("paho")
         service = cfg.service()
         service.listeners.append(_print_event)
         names = ", ".join(f"{m.id} ({m.source.kind})" for m in cfg.machines)
-        console.print(f"monitoring {names}", highlight=False, markup=False)
+        console.print(f"monitoring {names}", highlight=False, markup=False, soft_wrap=True)
         if service.log.recovered:
             console.print(f"event log {cfg.events}: {service.log.recovered} event(s) from before, kept",
-                          markup=False)
+                          markup=False, soft_wrap=True)
         if cfg.http is not None:
-            console.print(f"dashboard: http://{cfg.http[0]}:{cfg.http[1]}/  (Ctrl-C stops)", markup=False)
+            console.print(f"dashboard: http://{cfg.http[0]}:{cfg.http[1]}/  (Ctrl-C stops)", markup=False,
+                          soft_wrap=True)
         finite = all(m.source.kind == "replay" for m in cfg.machines) and cfg.http is None
+        # the loop thread computes while paho's network threads wait for the GIL to hand over messages:
+        # a 1 ms switch interval (Python's default is 5 ms) keeps that hand-over off the alarm latency
+        sys.setswitchinterval(1e-3)
         began = time.time()
         asyncio.run(_run(service, cfg.http, asyncio.Event(), until_finished=finite, duration=duration))
         wall = time.time() - began
@@ -227,4 +234,4 @@ def register(app: typer.Typer) -> None:
         report = publish_recording(rec, mqtt, machine=mid, topic=topic, speed=speed, chunk_s=chunk_ms * 1e-3,
                                    repeat=repeat)
         console.print(f"published {report['chunks']} chunk(s), {report['samples']} samples of machine {mid} to "
-                      f"{mqtt} topic {report['topic']} in {report['wall_s']:.2f} s", markup=False)
+                      f"{mqtt} topic {report['topic']} in {report['wall_s']:.2f} s", markup=False, soft_wrap=True)

@@ -381,6 +381,23 @@ class DetectorStream:
         arrays, t0 = _arrays(chunk, self.detector.channel_names)
         if t0 is not None and not self._t0_fixed:
             self._t0 = t0 - self.samples_seen / self.fs
+        return self.push_arrays(arrays)
+
+    def push_arrays(self, arrays: Mapping[str, np.ndarray]) -> Detection:
+        """Fast path: the next samples as float64 arrays already checked (finite, 1-D, equally long, SI).
+
+        The live monitor checks each chunk once and hands it to every detector through here.
+
+        Parameters
+        ----------
+        arrays : mapping of str to ndarray
+            Every channel the detector reads (:attr:`Detector.channel_names`) and the optional ones
+            (``spindle_speed`` [rad/s], ``feed_speed`` [m/s]...).
+
+        Returns
+        -------
+        Detection
+        """
         self._t0_fixed = True
         n = len(next(iter(arrays.values()))) if arrays else 0
         raw, stat, thr = self.detector.process(self.state, arrays, self.samples_seen)

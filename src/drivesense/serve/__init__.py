@@ -11,7 +11,8 @@ ties them to the outputs (:mod:`~drivesense.serve.outputs`) and the dashboard
 
 from drivesense.serve.machine import AxisPipeline, MachineMonitor
 from drivesense.serve.service import MachineSpec, MonitorService
-from drivesense.serve.sources import MQTTSource, ReplaySource, SimulatedSource, Source
+from drivesense.serve.mqtt import MQTTSource
+from drivesense.serve.sources import ReplaySource, SimulatedSource, Source
 from drivesense.serve.wire import Chunk, WireError, decode_chunk, encode_chunk
 
 __all__ = ["AxisPipeline", "MachineMonitor", "MachineSpec", "MonitorService", "MQTTSource", "ReplaySource",

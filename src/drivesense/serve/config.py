@@ -45,7 +45,8 @@ from typing import Any
 from drivesense.errors import ConfigError
 from drivesense.serve.machine import AxisPipeline, MachineMonitor
 from drivesense.serve.service import MachineSpec, MonitorService
-from drivesense.serve.sources import MQTTSource, ReplaySource, SimulatedSource, Source
+from drivesense.serve.mqtt import MQTTSource
+from drivesense.serve.sources import ReplaySource, SimulatedSource, Source
 
 __all__ = ["MonitorConfig", "load_config", "build_axis", "parse_http", "SOURCE_KINDS"]
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError
-from drivesense.monitor.detector import Detector, Event
+from drivesense.monitor.detector import Event
 from drivesense.monitor.overload import OverloadDetector
 from drivesense.recording import Recording
 from drivesense.serve.wire import Chunk
@@ -252,10 +252,10 @@ class MachineMonitor:
                                      f"{', '.join(missing)}")
         n = chunk.n
         for name, arr in chunk.arrays.items():
-            if np.ndim(arr) != 1 or len(arr) != n or n == 0:
-                raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} channel '{name}' has "
-                                         f"{np.size(arr)} samples, the others {n}")
-            if not np.all(np.isfinite(arr)):
+            if not isinstance(arr, np.ndarray) or arr.ndim != 1 or arr.size != n or n == 0 or arr.dtype != np.float64:
+                raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} channel '{name}' must be "
+                                         f"{n} float64 samples, got {np.shape(arr)} {getattr(arr, 'dtype', '')}")
+            if not math.isfinite(arr.sum()):       # NaN or inf (or a sum past 1e308: no drive signal is that big)
                 raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} channel '{name}' holds "
                                          f"NaN or inf")
 
@@ -324,7 +324,7 @@ class MachineMonitor:
                 inputs = {**forces, **extra, **positions}
                 self._rings[f"force_{axis.axis}"].extend(forces[f"force_{axis.axis}"])
                 for stream in det_streams:
-                    out = stream.push(inputs)
+                    out = stream.push_arrays(inputs)
                     for e in out.events:
                         events.append(Event(e.kind, e.time_s, e.axis, e.confidence, e.latency_s + est_latency,
                                             e.detector, e.evidence))
@@ -492,6 +492,7 @@ class MachineMonitor:
         return {"machine": self.machine, "axes": [a.axis for a in self.axes],
                 "detectors": sorted({d.name for a in self.axes for d in a.detectors}),
                 "fs": self.fs, "samples": self.samples, "chunks": self.chunks, "rejected": self.rejected,
-                "gaps": self.gaps, "time_jumps": self.time_jumps, "last_error": self.last_error, "lag_s": round(self.lag_s, 6),
+                "gaps": self.gaps, "time_jumps": self.time_jumps, "last_error": self.last_error,
+                "lag_s": round(self.lag_s, 6),
                 "busy_s": round(self.busy_s, 6), "t_last": self.t_last, "limits": self.limits(),
                 "statistics": list(self.stats.values())}

@@ -163,7 +163,7 @@ class AlarmPublisher:
     def __init__(self, url: str, *, prefix: str = "", client_id: str = "drivesense-monitor") -> None:
         import paho.mqtt.client as mqtt
 
-        from drivesense.serve.sources import parse_mqtt_url
+        from drivesense.serve.mqtt import parse_mqtt_url
 
         self.host, self.port = parse_mqtt_url(url)
         self.prefix = prefix

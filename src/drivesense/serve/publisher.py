@@ -12,7 +12,8 @@ import time
 
 from drivesense.errors import ConfigError
 from drivesense.recording import Recording
-from drivesense.serve.sources import ReplaySource, parse_mqtt_url
+from drivesense.serve.mqtt import parse_mqtt_url
+from drivesense.serve.sources import ReplaySource
 from drivesense.serve.wire import encode_chunk
 
 __all__ = ["publish_recording"]

@@ -186,9 +186,8 @@ class MonitorService:
         frames = asyncio.create_task(self._frames(stop), name="frames")
         try:
             while not stop.is_set():
-                if until_finished and all(m.source.finished and m.queue.empty() and m.state != "processing"
-                                          for m in self.machines.values()):
-                    break
+                if until_finished and all(m.source.finished and m.queue.empty() for m in self.machines.values()):
+                    break                             # the workers finish what they hold before they end
                 try:
                     await asyncio.wait_for(stop.wait(), 0.05)
                 except asyncio.TimeoutError:
@@ -260,8 +259,9 @@ class MonitorService:
                 continue
             for rec in records:
                 self._emit(rec)
+            segments = m.monitor.take_segments()      # taken whether archived or not: nothing piles up
             if self.archive is not None:
-                for rec, seg in m.monitor.take_segments():
+                for rec, seg in segments:
                     self.archive.offer((rec, seg))
             if m.queue.empty():
                 await asyncio.sleep(0)                # let the sources and the web server run
@@ -402,7 +402,8 @@ class MonitorService:
             lines.append(f"# TYPE drivesense_{name} {kind}")
             for labels, v in values:
                 lab = ",".join(f'{k}="{_esc(str(val))}"' for k, val in labels.items())
-                lines.append(f"drivesense_{name}{{{lab}}} {float(v):.9g}" if lab else f"drivesense_{name} {float(v):.9g}")
+                lines.append(f"drivesense_{name}{{{lab}}} {float(v):.9g}" if lab
+                             else f"drivesense_{name} {float(v):.9g}")
 
         ms = self.machines.values()
         metric("samples_total", "counter", "Samples processed per machine.",

@@ -1,4 +1,4 @@
-"""Where a monitored machine's drive signals come from: a replayed file, the simulator, an MQTT broker.
+"""Where a monitored machine's drive signals come from: a replayed file, the simulator.
 
 Every source delivers :class:`~drivesense.serve.wire.Chunk` objects of one
 machine through ``await put(item)``; ``put`` blocks while the machine's queue
@@ -9,8 +9,9 @@ stream goes on.  A source that loses its connection raises from
 :meth:`Source.run`; the service calls ``run`` again after a back-off, and the
 source resumes where it was (sequence numbers continue).
 
-The network sources of controllers (MTConnect agents, OPC UA servers) live
-in :mod:`drivesense.serve.controllers`.
+The network sources live beside it: edge devices publishing to a broker in
+:mod:`drivesense.serve.mqtt`, controllers (MTConnect agents, OPC UA servers) in
+:mod:`drivesense.serve.controllers`.
 """
 
 from __future__ import annotations
@@ -23,14 +24,12 @@ from collections.abc import Awaitable, Callable
 from dataclasses import replace
 from typing import Any, ClassVar
 
-import numpy as np
 
 from drivesense.errors import ConfigError
 from drivesense.recording import Recording
-from drivesense.serve.wire import Chunk, WireError, decode_chunk
+from drivesense.serve.wire import Chunk
 
-__all__ = ["Source", "ReplaySource", "SimulatedSource", "MQTTSource", "Put", "parse_mqtt_url", "DEMO_FEED",
-           "demo_condition"]
+__all__ = ["Source", "ReplaySource", "SimulatedSource", "Put", "DEMO_FEED", "demo_condition"]
 
 #: What a source hands each chunk (or unreadable message) to.
 Put = Callable[[Any], Awaitable[None]]
@@ -272,113 +271,3 @@ class SimulatedSource(Source):
                 self.cuts += 1
         finally:
             ahead.cancel()
-
-
-def parse_mqtt_url(url: str) -> tuple[str, int]:
-    """Host and port of ``mqtt://HOST[:PORT]`` (default port 1883).
-
-    Parameters
-    ----------
-    url : str
-        Broker URL.
-
-    Raises
-    ------
-    ConfigError
-        Another scheme or a bad port.
-    """
-    import urllib.parse
-
-    parts = urllib.parse.urlsplit(str(url))
-    if parts.scheme != "mqtt" or not parts.hostname:
-        raise ConfigError(f"broker URL must look like mqtt://HOST[:PORT], got {url!r}")
-    try:
-        port = parts.port or 1883
-    except ValueError:
-        raise ConfigError(f"broker URL {url!r}: bad port") from None
-    return parts.hostname, port
-
-
-class MQTTSource(Source):
-    """Chunks published by an edge device to an MQTT broker (message format: :mod:`drivesense.serve.wire`).
-
-    Subscribes with QoS 1 and a persistent session (the broker keeps what arrives while the service
-    reconnects); reconnects by itself after a broker restart.  The paho network thread hands each
-    message to the service's queue and waits while it is full (backpressure reaches the broker).
-
-    Parameters
-    ----------
-    machine : str
-        Machine id (messages for another machine are refused).
-    url : str
-        ``mqtt://HOST[:PORT]``.
-    topic : str
-        Topic the edge device publishes to (default ``{machine}/drive``).
-    client_id : str, optional
-        MQTT client id (default ``drivesense-{machine}``).
-    """
-
-    kind = "mqtt"
-
-    def __init__(self, machine: str, url: str, topic: str | None = None, *, client_id: str | None = None) -> None:
-        super().__init__(machine)
-        self.host, self.port = parse_mqtt_url(url)
-        self.url = url
-        self.topic = topic or f"{machine}/drive"
-        self.client_id = client_id or f"drivesense-{machine}"
-        self.connected = False
-        self.messages = 0
-
-    def describe(self) -> dict:
-        """Kind, broker, topic, connection state."""
-        return {"kind": self.kind, "url": self.url, "topic": self.topic, "connected": self.connected,
-                "messages": self.messages}
-
-    async def run(self, put: Put, stop: asyncio.Event) -> None:
-        """Subscribe and hand on every message until stopped (see :class:`Source`).
-
-        Parameters
-        ----------
-        put : callable
-            ``await put(chunk_or_exception)``.
-        stop : asyncio.Event
-            Set when the service shuts down.
-        """
-        import paho.mqtt.client as mqtt
-
-        loop = asyncio.get_running_loop()
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=self.client_id, clean_session=False)
-        client.reconnect_delay_set(0.2, 2.0)
-
-        def on_connect(c, userdata, flags, reason, props=None):
-            if not reason.is_failure:
-                self.connected = True
-                c.subscribe(self.topic, qos=1)
-
-        def on_disconnect(c, userdata, flags, reason, props=None):
-            self.connected = False
-
-        def on_message(c, userdata, msg):
-            self.messages += 1
-            try:
-                item: Any = decode_chunk(msg.payload)
-                if item.machine != self.machine:
-                    item = WireError(f"topic {msg.topic}: a chunk of machine '{item.machine}', expected "
-                                     f"'{self.machine}'")
-            except WireError as exc:
-                item = exc
-            fut = asyncio.run_coroutine_threadsafe(put(item), loop)
-            try:
-                fut.result()
-            except Exception:               # the service is shutting down  # noqa: BLE001
-                pass
-
-        client.on_connect, client.on_disconnect, client.on_message = on_connect, on_disconnect, on_message
-        try:
-            client.connect_async(self.host, self.port, keepalive=10)
-            client.loop_start()
-            await stop.wait()
-        finally:
-            client.disconnect()
-            client.loop_stop()
-
