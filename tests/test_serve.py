@@ -279,6 +279,8 @@ def test_config_errors_name_the_machine_and_the_key(files, tmp_path):
 
     with pytest.raises(ConfigError, match=r"no \[\[machine\]\]"):
         load_config(config("[service]\n"))
+    with pytest.raises(ConfigError, match=r"machine 'a' source: unknown key\(s\) sped"):
+        load_config(config('[[machine]]\nid = "a"\nsource = {kind = "simulated", sped = 3}\n'))
     with pytest.raises(ConfigError, match="unknown kind 'ftp'"):
         load_config(config('[[machine]]\nid = "a"\nsource = {kind = "ftp"}\n'))
     with pytest.raises(ConfigError, match=r"machine 'a' axis 'x'.*idle"):

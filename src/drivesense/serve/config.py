@@ -53,6 +53,19 @@ __all__ = ["MonitorConfig", "load_config", "build_axis", "parse_http", "SOURCE_K
 #: Source kinds a config may name.
 SOURCE_KINDS = ("replay", "simulated", "mqtt", "mtconnect", "opcua")
 _DETECTORS = ("breakage", "chatter", "overload", "teach-in")
+#: Keys each table may hold (a typo is refused, not ignored).
+_KEYS = {"machine": {"id", "teeth", "spindle_rpm", "source", "axis", "history_s"},
+         "axis": {"name", "method", "axis_file", "axes_file", "model", "idle", "tare", "tare_trace", "detectors",
+                  "force_limit", "limits", "baseline_revs"},
+         "replay": {"kind", "path", "speed", "loop", "chunk_s", "axis_name"},
+         "simulated": {"kind", "seed", "speed", "cut_s", "event_share"},
+         "mqtt": {"kind", "url", "topic"}}
+
+
+def _known(table: dict, which: str, where: str) -> None:
+    unknown = sorted(set(table) - _KEYS[which])
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(_KEYS[which]))})")
 
 
 @dataclass
@@ -223,6 +236,8 @@ def _source(machine: str, spec: Any, base: Path, read: Callable, where: str) -> 
         raise ConfigError(f"{where}: 'source' must be a table with a 'kind' ({', '.join(SOURCE_KINDS)})")
     kind = spec["kind"]
     where = f"{where} source"
+    if kind in _KEYS:
+        _known(spec, kind, where)
     if kind == "replay":
         rec = read(_path(base, spec.get("path"), where, "path"), spec.get("axis_name", "x"))
         return ReplaySource(machine, rec, speed=_number(spec, "speed", where, 1.0, positive=False),
@@ -253,6 +268,7 @@ def _machine(spec: Any, base: Path, read: Callable) -> MachineSpec:
         raise ConfigError("every [[machine]] needs an 'id' (a string)")
     mid = spec["id"]
     where = f"machine '{mid}'"
+    _known(spec, "machine", where)
     teeth = _get(spec, "teeth", int, where, need="an integer >= 1", check=lambda v: v >= 1)
     rpm = _number(spec, "spindle_rpm", where)
     source = _source(mid, spec.get("source"), base, read, where)
@@ -268,6 +284,7 @@ def _machine(spec: Any, base: Path, read: Callable) -> MachineSpec:
         name = a.get("name") if isinstance(a, dict) else None
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{where}: every [[machine.axis]] needs a 'name' (the axis letter)")
+        _known(a, "axis", f"{where} axis '{name}'")
         pipelines.append(build_axis(name, a, base=base, read=read, where=f"{where} axis '{name}'", teeth=teeth,
                                     spindle_rpm=rpm))
     history = _number(spec, "history_s", where, 10.0)
