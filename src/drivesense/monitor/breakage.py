@@ -35,13 +35,43 @@ import numpy as np
 import scipy.signal
 from numba import njit
 
-from drivesense.errors import ConfigError, SignalTooShortError
+from drivesense.errors import SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
 from drivesense.monitor.detector import Detector, feed_steady, spindle_speed_of
 
 __all__ = ["BreakageDetector"]
 
 _TWO_PI = 2.0 * math.pi
+
+
+def _median(x: np.ndarray) -> float:
+    """The median of a 1-D array [unit of x] (numpy's, without its per-call wrappers; NaN when empty)."""
+    n = x.size
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return float(0.5 * (part[k - 1] + part[k]))
+
+
+@njit(cache=True, nogil=True)
+def _sosfilt(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``scipy.signal.sosfilt(sos, x, zi=zi)`` (direct form II transposed, as scipy), ``zi`` updated in place."""
+    y = x.copy()
+    for s in range(sos.shape[0]):
+        b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
+        z0, z1 = zi[s, 0], zi[s, 1]
+        for i in range(y.size):
+            xi = y[i]
+            yi = b0 * xi + z0
+            z0 = b1 * xi - a1 * yi + z1
+            z1 = b2 * xi - a2 * yi
+            y[i] = yi
+        zi[s, 0] = z0
+        zi[s, 1] = z1
+    return y
 _BINS_PER_TOOTH = 8
 # scalar state slots
 (_THETA, _NEXT_REV, _REVS, _MEAN, _M2, _NSTAT, _THR, _PERSIST, _LATCH, _CUTTING, _HEAD, _COUNT,
@@ -421,7 +451,8 @@ class BreakageDetector(Detector):
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
         raw = np.ascontiguousarray(force)
-        force = self._highpass(state, force, omega)
+        w_median = _median(omega)
+        force = self._highpass(state, force, w_median)
         feed_ok = feed_steady(arrays, state)
         if "feed_speed" not in arrays and self.teeth > 1:
             moving = np.zeros(n)       # a drop of all force without a feed signal may be a retract: not judged
@@ -432,7 +463,7 @@ class BreakageDetector(Detector):
         ev_index = np.zeros(16, dtype=np.int64)
         ev_data = np.zeros((16, 5))
         fs = state["fs"]
-        persist = max(1, int(round(0.5 * 60.0 / max(np.median(omega) * 60 / _TWO_PI, 1.0) / self.teeth * fs))) \
+        persist = max(1, int(round(0.5 * 60.0 / max(w_median * 60 / _TWO_PI, 1.0) / self.teeth * fs))) \
             if n else 1
         n_ev = _breakage_loop(force, raw, omega, feed_ok, moving, fs, self.teeth, state["harm"].size, self.gate_n,
                               self.min_rpm * _TWO_PI / 60.0, float(self.baseline_revs), self.threshold, self.sigmas,
@@ -457,19 +488,18 @@ class BreakageDetector(Detector):
             events.append((start + int(ev_index[e]), kind, confidence, evidence))
         return events, stat, thr
 
-    def _highpass(self, state: dict, force: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    def _highpass(self, state: dict, force: np.ndarray, w: float) -> np.ndarray:
         """The force without what is slower than a third of the rotation (a ramp of an overload, the
-        estimator's slow errors): it would leak into every harmonic of the window."""
+        estimator's slow errors): it would leak into every harmonic of the window.  ``w``: the chunk's
+        median spindle speed [rad/s]."""
         if force.size == 0:
             return np.ascontiguousarray(force)
-        w = float(np.median(omega))
         corner = max(w / _TWO_PI / 3.0, self.min_rpm / 60.0 / 3.0)
         if state.get("hp_corner") is None or abs(corner - state["hp_corner"]) > 0.05 * state["hp_corner"]:
             state["hp_corner"] = corner
             state["hp_sos"] = scipy.signal.butter(2, corner, btype="high", fs=state["fs"], output="sos")
             state["hp_zi"] = scipy.signal.sosfilt_zi(state["hp_sos"]) * force[0]
-        out, state["hp_zi"] = scipy.signal.sosfilt(state["hp_sos"], force, zi=state["hp_zi"])
-        return np.ascontiguousarray(out)
+        return _sosfilt(state["hp_sos"], np.ascontiguousarray(force, dtype=float), state["hp_zi"])
 
     def check_ready(self, state: dict) -> None:
         """Refuse a trace with a cut too short to learn a baseline (a trace of air passes).

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError
 from drivesense.monitor.detector import Event
@@ -87,11 +88,39 @@ class Ring:
         return self._data[idx]
 
 
+@njit(cache=True, nogil=True)
+def _feed_kernel(pos: np.ndarray, last: np.ndarray, ring: np.ndarray, state: np.ndarray,
+                 fs: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Path speed [m/s] per sample from positions (channels x samples) [m], a running mean over ``ring``."""
+    n = pos.shape[1]
+    width = ring.size
+    out = np.empty(n)
+    head, filled, total = int(state[0]), int(state[1]), state[2]
+    for i in range(n):
+        v2 = 0.0
+        for c in range(pos.shape[0]):
+            d = pos[c, i] - last[c]
+            last[c] = pos[c, i]
+            v2 += d * d
+        v = math.sqrt(v2) * fs
+        if filled == width:
+            total -= ring[head]
+        else:
+            filled += 1
+        ring[head] = v
+        total += v
+        head = (head + 1) % width
+        out[i] = max(total, 0.0) / filled
+    state[0], state[1], state[2] = head, filled, total
+    return out
+
+
 class FeedSpeedStream:
     """Tool-path speed [m/s] from table positions, causal: a moving average over the last 50 ms.
 
     The live counterpart of :func:`drivesense.monitor.pipeline.feed_speed_of` (which centres its window on a
-    whole trace): the detectors read it to hold off while the feed changes.
+    whole trace): the detectors read it to hold off while the feed changes.  Constant state (a running
+    sum over a ring of the window), one compiled pass per chunk.
 
     Parameters
     ----------
@@ -104,8 +133,10 @@ class FeedSpeedStream:
     def __init__(self, fs: float, window_s: float = 50e-3) -> None:
         self.fs = float(fs)
         self.width = max(1, int(round(window_s * fs)))
-        self._last: dict[str, float] = {}
-        self._history = np.zeros(0)
+        self._names: list[str] | None = None
+        self._last = np.zeros(0)
+        self._ring = np.zeros(self.width)
+        self._state = np.zeros(3)
 
     def push(self, positions: dict[str, np.ndarray]) -> np.ndarray:
         """Feed speed per sample of the chunk [m/s].
@@ -113,23 +144,14 @@ class FeedSpeedStream:
         Parameters
         ----------
         positions : dict of str to ndarray
-            ``*_table_position`` channels [m].
+            ``*_table_position`` channels [m] (the same ones every chunk).
         """
-        v2 = 0.0
-        for name in sorted(positions):
-            p = positions[name]
-            prev = self._last.get(name, p[0])
-            v2 = v2 + (np.diff(p, prepend=prev) * self.fs) ** 2
-            self._last[name] = float(p[-1])
-        speed = np.sqrt(v2)
-        joined = np.concatenate([self._history, speed])
-        csum = np.concatenate([[0.0], np.cumsum(joined)])
-        hist = self._history.size
-        idx = np.arange(hist, joined.size) + 1
-        lo = np.maximum(idx - self.width, 0)
-        out = (csum[idx] - csum[lo]) / (idx - lo)
-        self._history = joined[-(self.width - 1):] if self.width > 1 else np.zeros(0)
-        return out
+        names = sorted(positions)
+        pos = np.ascontiguousarray(np.vstack([positions[c] for c in names]), dtype=float)
+        if self._names != names:                  # the first chunk (or another set of axes): start from here
+            self._names = names
+            self._last = pos[:, 0].copy()
+        return _feed_kernel(pos, self._last, self._ring, self._state, self.fs)
 
 
 @dataclass
