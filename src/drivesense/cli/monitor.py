@@ -51,7 +51,7 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
             "limits": limits and str(limits), "force_limit": force_limit, "baseline_revs": baseline_revs}
     machine = trace.stem
     axis = build_axis(axis_name, {k: v for k, v in spec.items() if v is not None}, base=Path.cwd(), read=read,
-                      where="--replay", teeth=teeth, spindle_rpm=spindle_rpm, tare_trace=rec)
+                      where="--replay", teeth=teeth, spindle_rpm=spindle_rpm, tare_trace=rec, labels={})
     source = ReplaySource(machine, rec, speed=speed)
     return MonitorConfig([MachineSpec(machine, source, MachineMonitor(machine, [axis]))])
 

@@ -62,6 +62,10 @@ _KEYS = {"machine": {"id", "teeth", "spindle_rpm", "source", "axis", "history_s"
          "mqtt": {"kind", "url", "topic"}}
 
 
+#: What messages call the method options in a config file.
+_CONFIG_LABELS = {"--method": "method", "--axis": "axis_file", "--axes": "axes_file", "--model": "model"}
+
+
 def _known(table: dict, which: str, where: str) -> None:
     unknown = sorted(set(table) - _KEYS[which])
     if unknown:
@@ -151,7 +155,7 @@ def _path(base: Path, value: Any, where: str, key: str) -> Path:
 
 
 def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str, teeth: int | None,
-               spindle_rpm: float | None, tare_trace: Any = None) -> AxisPipeline:
+               spindle_rpm: float | None, tare_trace: Any = None, labels: dict | None = None) -> AxisPipeline:
     """One axis's fitted estimator and detectors from its config table (or the CLI's options).
 
     Parameters
@@ -173,6 +177,8 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
         Fixed spindle speed [min^-1].
     tare_trace : Recording, optional
         Trace the tare window is cut from when ``tare_trace`` is not in `spec` (``--replay``).
+    labels : dict, optional
+        What messages call the method and its files (default: the config's keys; ``{}``: the CLI's options).
     """
     from drivesense.estimate.registry import make_from_files
     from drivesense.io import read_json_file
@@ -185,10 +191,9 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     try:
         est = make_from_files(method, axis_file=files["axis_file"], axes_file=files["axes_file"],
                               model_dir=files["model"], axis_name=name,
-                              labels={"--method": f"{where}: method", "--axis": "axis_file", "--axes": "axes_file",
-                                      "--model": "model"})
+                              labels=_CONFIG_LABELS if labels is None else labels)
     except ConfigError as exc:
-        raise ConfigError(str(exc) if str(exc).startswith(where) else f"{where}: {exc}") from None
+        raise ConfigError(f"{where}: {exc}") from None
     idle = spec.get("idle")
     tare = _get(spec, "tare", str, where, need="START:END [s]")
     if est.drive == "ballscrew":
