@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError
+from drivesense.estimate.base import check_chunk
 from drivesense.monitor.detector import Event
 from drivesense.monitor.overload import OverloadDetector
 from drivesense.recording import Recording
@@ -246,13 +247,18 @@ class MachineMonitor:
         self.required = sorted({c for a in self.axes for c in a.estimator.channel_names})
 
     # ------------------------------------------------------------------ checks
-    def check(self, chunk: Chunk) -> None:
+    def check(self, chunk: Chunk) -> dict[str, np.ndarray]:
         """Refuse a chunk this machine cannot take (raises, naming the problem; no state changes).
 
         Parameters
         ----------
         chunk : Chunk
             The chunk.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Its channels as float64 arrays [SI unit of each channel].
 
         Raises
         ------
@@ -272,14 +278,12 @@ class MachineMonitor:
         if missing:
             raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} lacks channel(s) "
                                      f"{', '.join(missing)}")
-        n = chunk.n
-        for name, arr in chunk.arrays.items():
-            if not isinstance(arr, np.ndarray) or arr.ndim != 1 or arr.size != n or n == 0 or arr.dtype != np.float64:
-                raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} channel '{name}' must be "
-                                         f"{n} float64 samples, got {np.shape(arr)} {getattr(arr, 'dtype', '')}")
-            if not math.isfinite(arr.sum()):       # NaN or inf (or a sum past 1e308: no drive signal is that big)
-                raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} channel '{name}' holds "
-                                         f"NaN or inf")
+        if chunk.n == 0:
+            raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} holds no samples")
+        try:                                      # 1-D, one length, finite: the estimators' own chunk check
+            return check_chunk(chunk.arrays, list(chunk.arrays))
+        except DriveSenseError as exc:
+            raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq}: {exc}") from None
 
     def reject(self, reason: str) -> None:
         """Count a chunk (or message) that could not be used.
@@ -316,7 +320,7 @@ class MachineMonitor:
             The next chunk of this machine.
         """
         try:
-            self.check(chunk)
+            arrays = self.check(chunk)
         except InvalidSignalError as exc:
             self.reject(str(exc))
             return []
@@ -334,7 +338,6 @@ class MachineMonitor:
                     for stream in det_streams:
                         stream.shift_time(jump)
         self.last_seq = chunk.seq
-        arrays = chunk.arrays
         extra = {c: arrays[c] for c in ("spindle_speed", "spindle_power") if c in arrays}
         positions = {c: arrays[c] for c in arrays if c.endswith("_table_position")}
         if positions:
