@@ -11,8 +11,8 @@ from typing import Annotated
 
 import typer
 
-from drivesense.cli import (archive, core, detect, feedpower, identify_frf, identify_linear, identify_nc, learn, monitor,
-                            mtconnect, plot_cmd, sensor, wear, xml_cmd)
+from drivesense.cli import (archive, core, detect, feedpower, identify_frf, identify_linear, identify_nc, learn,
+                            monitor, mtconnect, plot_cmd, sensor, wear, xml_cmd)
 
 __all__ = ["app", "identify_app", "main"]
 

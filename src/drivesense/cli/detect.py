@@ -22,6 +22,13 @@ TareOpt = Annotated[Optional[str], typer.Option(help="START:END [s] of a tare wi
 AxisNameOpt = Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")]
 AxesOpt = Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")]
 ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")]
+SpindleRpmOpt = Annotated[Optional[float], typer.Option("--spindle-rpm", help="Spindle speed [min^-1] when the trace "
+                                                        "has no spindle_speed column.")]
+TeethOpt = Annotated[Optional[int], typer.Option("--teeth", help="Number of teeth (flutes) of the tool: the breakage "
+                                                 "detector needs it (default: the trace's tool, when it names one).")]
+LimitsOpt = Annotated[Optional[Path], typer.Option("--limits", help="LIMITS.json from 'drivesense teach'.")]
+ForceLimitOpt = Annotated[Optional[float], typer.Option("--force-limit", help="Collision/overload limit [N] "
+                                                        "(default: the taught one).")]
 
 
 def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
@@ -46,7 +53,8 @@ def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
     return rec, detector_inputs(rec, forces)
 
 
-def _teeth(rec, teeth: Optional[int]) -> Optional[int]:
+def tool_teeth(rec, teeth: Optional[int]) -> Optional[int]:
+    """``--teeth``, else the flutes of the tool the trace's metadata names (None when neither says)."""
     if teeth is not None:
         return teeth
     tool = rec.meta.get("tool") if isinstance(rec.meta.get("tool"), dict) else None
@@ -65,14 +73,10 @@ def register(app: typer.Typer) -> None:
         method: MethodOpt = "vibration",
         idle: IdleOpt = None,
         tare: TareOpt = None,
-        spindle_rpm: Annotated[Optional[float], typer.Option("--spindle-rpm", help="Spindle speed [min^-1] when "
-                                                             "the trace has no spindle_speed column.")] = None,
-        teeth: Annotated[Optional[int], typer.Option("--teeth", help="Number of teeth (flutes) of the tool: the "
-                                                     "breakage detector needs it.")] = None,
-        limits: Annotated[Optional[Path], typer.Option("--limits", help="LIMITS.json from 'drivesense teach'.")]
-        = None,
-        force_limit: Annotated[Optional[float], typer.Option("--force-limit", help="Collision/overload limit [N] "
-                                                             "(default: the taught one).")] = None,
+        spindle_rpm: SpindleRpmOpt = None,
+        teeth: TeethOpt = None,
+        limits: LimitsOpt = None,
+        force_limit: ForceLimitOpt = None,
         baseline_revs: Annotated[int, typer.Option("--baseline-revs", help="Revolutions of each cut the breakage "
                                                    "detector learns its baseline over.")] = 8,
         plot: Annotated[Optional[Path], typer.Option(help="Write a PNG: force, detector statistics, thresholds "
@@ -108,7 +112,7 @@ def register(app: typer.Typer) -> None:
         rec, inputs = _forces(trace, read, est, method, idle, tare, axis_name)
         if "spindle_speed" not in inputs.channels and spindle_rpm is None:
             raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
-        z = _teeth(rec, teeth)
+        z = tool_teeth(rec, teeth)
         rpm = spindle_rpm
         if rpm is None:                        # the trace's own speed: it sets the latency the detectors declare
             import numpy as np

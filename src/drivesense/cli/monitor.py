@@ -15,7 +15,8 @@ from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader,
                                    write_json)
-from drivesense.cli.detect import AxesOpt, AxisNameOpt, AxisOpt, IdleOpt, MethodOpt, ModelOpt, TareOpt
+from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
+                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt, tool_teeth)
 
 __all__ = ["register"]
 
@@ -43,9 +44,7 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
     rec = read(trace, axis_name)
     if "spindle_speed" not in rec.channels and spindle_rpm is None:
         raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
-    if teeth is None:
-        tool = rec.meta.get("tool") if isinstance(rec.meta.get("tool"), dict) else None
-        teeth = int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
+    teeth = tool_teeth(rec, teeth)
     spec = {"method": method, "axis_file": axis_file and str(axis_file), "axes_file": axes_file and str(axes_file),
             "model": model_dir and str(model_dir), "idle": [str(p) for p in idle or []] or None, "tare": tare,
             "limits": limits and str(limits), "force_limit": force_limit, "baseline_revs": baseline_revs}
@@ -119,14 +118,10 @@ def register(app: typer.Typer) -> None:
         method: MethodOpt = "vibration",
         idle: IdleOpt = None,
         tare: TareOpt = None,
-        spindle_rpm: Annotated[Optional[float], typer.Option("--spindle-rpm", help="Spindle speed [min^-1] when "
-                                                             "the trace has no spindle_speed column.")] = None,
-        teeth: Annotated[Optional[int], typer.Option("--teeth", help="Number of teeth (flutes) of the tool.")]
-        = None,
-        limits: Annotated[Optional[Path], typer.Option("--limits", help="LIMITS.json from 'drivesense teach'.")]
-        = None,
-        force_limit: Annotated[Optional[float], typer.Option("--force-limit", help="Collision/overload limit "
-                                                             "[N].")] = None,
+        spindle_rpm: SpindleRpmOpt = None,
+        teeth: TeethOpt = None,
+        limits: LimitsOpt = None,
+        force_limit: ForceLimitOpt = None,
         baseline_revs: Annotated[Optional[int], typer.Option("--baseline-revs", help="Revolutions of each cut "
                                                              "the breakage detector learns over.")] = None,
         axis_name: AxisNameOpt = "x",
