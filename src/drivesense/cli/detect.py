@@ -33,22 +33,12 @@ ForceLimitOpt = Annotated[Optional[float], typer.Option("--force-limit", help="C
 
 def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
     """The trace and the detector inputs (estimated forces + spindle speed, feed, positions)."""
-    from drivesense.errors import ConfigError
     from drivesense.monitor.pipeline import detector_inputs
+    from drivesense.serve.config import fit_or_tare
 
     rec = read(trace, axis_name) if est.drive == "ballscrew" else read(trace)
-    if est.drive == "ballscrew":
-        if idle and tare:
-            raise ConfigError("give either --idle runs or --tare, not both")
-        if idle:
-            est.fit([read(p, axis_name) for p in idle])
-        elif tare:
-            est.tare(rec, *parse_window(tare))
-        else:
-            raise ConfigError(f"--method {method} needs --idle runs (friction map) or --tare START:END: without "
-                              "them the friction would be taken for process force")
-    elif idle or tare:
-        raise ConfigError(f"--method {method} takes no --idle/--tare (it reads a 3-axis NC trace)")
+    fit_or_tare(est, method, idle_runs=(lambda: [read(p, axis_name) for p in idle]) if idle else None,
+                tare=parse_window(tare) if tare else None, trace=rec)
     forces = est.estimate(rec)
     return rec, detector_inputs(rec, forces)
 

@@ -48,7 +48,7 @@ from drivesense.serve.service import MachineSpec, MonitorService
 from drivesense.serve.mqtt import MQTTSource
 from drivesense.serve.sources import ReplaySource, SimulatedSource, Source
 
-__all__ = ["MonitorConfig", "load_config", "build_axis", "parse_http", "SOURCE_KINDS"]
+__all__ = ["MonitorConfig", "load_config", "build_axis", "fit_or_tare", "parse_http", "SOURCE_KINDS"]
 
 #: Source kinds a config may name.
 SOURCE_KINDS = ("replay", "simulated", "mqtt", "mtconnect", "opcua")
@@ -64,6 +64,53 @@ _KEYS = {"machine": {"id", "teeth", "spindle_rpm", "source", "axis", "history_s"
 
 #: What messages call the method options in a config file.
 _CONFIG_LABELS = {"--method": "method", "--axis": "axis_file", "--axes": "axes_file", "--model": "model"}
+
+
+#: How :func:`fit_or_tare`'s messages name the method, the idle runs and the tare window.
+_CLI_NAMES = {"method": "--method", "idle": "--idle runs", "tare": "--tare", "window": "--tare START:END"}
+_CONFIG_NAMES = {"method": "method", "idle": "'idle' runs", "tare": "'tare'", "window": "'tare' (with 'tare_trace')"}
+
+
+def fit_or_tare(est: Any, method: str, *, idle_runs: Callable | None, tare: tuple | None, trace: Any,
+                names: dict = _CLI_NAMES) -> None:
+    """Calibrate a ball-screw estimator's friction from idle runs or a tare window; refuse what cannot work.
+
+    Parameters
+    ----------
+    est : ForceEstimator
+        The estimator (``est.drive`` says whether it is a ball-screw method).
+    method : str
+        Its name (for messages).
+    idle_runs : callable, optional
+        Returns the idle (air-cut) runs, read only when they are used.
+    tare : tuple of float, optional
+        START, END [s] of a window where the axis stands.
+    trace : Recording, optional
+        The trace the tare window is cut from.
+    names : dict
+        How messages name ``method``, ``idle``, ``tare`` and ``window`` (the CLI's options by default).
+
+    Raises
+    ------
+    ConfigError
+        Both or neither for a ball-screw method; either for another method; a tare without a trace.
+    """
+    if est.drive != "ballscrew":
+        if idle_runs is not None or tare is not None:
+            raise ConfigError(f"{names['method']} {method} takes no {names['idle'].split()[0]}/{names['tare']} "
+                              f"(it reads a 3-axis NC trace)")
+        return
+    if idle_runs is not None and tare is not None:
+        raise ConfigError(f"give either {names['idle']} or {names['tare']}, not both")
+    if idle_runs is not None:
+        est.fit(idle_runs())
+    elif tare is not None:
+        if trace is None:
+            raise ConfigError(f"{names['tare']} needs a trace of the standing axis ('tare_trace')")
+        est.tare(trace, *tare)
+    else:
+        raise ConfigError(f"{names['method']} {method} needs {names['idle']} (friction map) or {names['window']}: "
+                          f"without them the friction would be taken for process force")
 
 
 def _known(table: dict, which: str, where: str) -> None:
@@ -196,27 +243,22 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
         raise ConfigError(f"{where}: {exc}") from None
     idle = spec.get("idle")
     tare = _get(spec, "tare", str, where, need="START:END [s]")
-    if est.drive == "ballscrew":
-        if idle and tare:
-            raise ConfigError(f"{where}: give either 'idle' runs or 'tare', not both")
-        if idle:
-            if isinstance(idle, str):
-                idle = [idle]
-            est.fit([read(_path(base, p, where, "idle"), name) for p in idle])
-        elif tare:
-            start, _, end = tare.partition(":")
-            try:
-                window = (float(start), float(end))
-            except ValueError:
-                raise ConfigError(f"{where}: 'tare' must be START:END [s], got {tare!r}") from None
-            trace = (read(_path(base, spec["tare_trace"], where, "tare_trace"), name)
-                     if spec.get("tare_trace") else tare_trace)
-            if trace is None:
-                raise ConfigError(f"{where}: 'tare' needs 'tare_trace' (a trace of the standing axis)")
-            est.tare(trace, *window)
-        else:
-            raise ConfigError(f"{where}: method {method} needs 'idle' runs (friction map) or 'tare' (--idle or "
-                              f"--tare): without them the friction would be taken for process force")
+    window = None
+    if tare:
+        start, _, end = tare.partition(":")
+        try:
+            window = (float(start), float(end))
+        except ValueError:
+            raise ConfigError(f"{where}: 'tare' must be START:END [s], got {tare!r}") from None
+        if spec.get("tare_trace"):
+            tare_trace = read(_path(base, spec["tare_trace"], where, "tare_trace"), name)
+    idle = [idle] if isinstance(idle, str) else idle
+    runs = (lambda: [read(_path(base, p, where, "idle"), name) for p in idle]) if idle else None
+    try:
+        fit_or_tare(est, method, idle_runs=runs, tare=window, trace=tare_trace,
+                    names=_CONFIG_NAMES if labels is None else _CLI_NAMES)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
     kinds = _get(spec, "detectors", list, where, list(_DETECTORS), need=f"a list of {', '.join(_DETECTORS)}")
     bad = [k for k in kinds if k not in _DETECTORS]
     if bad:
