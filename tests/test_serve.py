@@ -167,7 +167,8 @@ def test_segments_hold_the_signal_around_each_event(breakage_cut):
     mon = demo_monitor("m")
     for c in _chunks(breakage_cut):
         mon.process(c)
-    [(record, seg)] = mon.take_segments()
+    [(record, segment)] = mon.take_segments()
+    seg = segment.recording()
     assert seg.meta["event_id"] == record["id"]
     assert seg.t0 <= record["time_s"] - 0.99 and seg.t0 + seg.duration >= record["time_s"] + 0.49
     assert {"force_x", "x_current_ref", "spindle_speed"} <= set(seg.channels)
@@ -208,6 +209,26 @@ def test_event_log_fsyncs_recovers_a_torn_line_and_refuses_repeats(tmp_path):
     with pytest.raises(KeyError, match="no event"):
         EventLog(path).acknowledge("nope")
 
+
+
+def test_event_log_line_is_readable_at_once_and_synced_by_the_syncer(tmp_path):
+    path = tmp_path / "ev.jsonl"
+    log = EventLog(path)
+    for k in range(50):
+        log.append({"id": f"m/b/x/{k}", "machine": "m", "kind": "breakage"})
+        assert path.read_bytes().count(b"\n") == k + 1        # written before append returns (kill -9 safe)
+    assert log.sync(timeout=10.0) and log.synced == log.written == 50
+    log.close()
+    log.close()                                                  # twice is harmless
+    assert len(EventLog(path).ids) == 50
+
+
+def test_warm_up_leaves_the_machine_untouched():
+    from drivesense.serve.demo import demo_monitor
+
+    mon = demo_monitor("m")
+    mon.warm_up()
+    assert mon.fs is None and mon.samples == mon.chunks == mon.rejected == 0 and mon.last_seq is None
 
 # ----------------------------------------------------------------------------------------------- service
 def _replay_service(rec, tmp_path, **kw):

@@ -482,7 +482,7 @@ def _memory(work: Path, *, quick: bool, archive: bool) -> dict:
     wall_h, signal_h, rss, h = rows[:, 0] / 3600, rows[:, 1] / res["fs"] / 3600, rows[:, 2] / 2**20, len(rows) // 2
     slope = {f"slope_mb_per_{k}_h": float(np.polyfit(x[h:], rss[h:], 1)[0]) if len(rows) - h >= 3 else None
              for k, x in (("wall", wall_h), ("signal", signal_h))}
-    return {"outputs": "event log (fsync) and archive (SQLite)" if archive else "event log (fsync), no archive",
+    return {"outputs": "event log and archive (SQLite)" if archive else "event log, no archive",
             "signal_h": round(float(signal_h[-1]), 4), "wall_s": round(float(rows[-1, 0]), 1), "speed": 50.0,
             "events": res["events"], **slope, **{f"rss_{k}_mb": round(float(v), 1) for k, v in (
                 ("start", rss[0]), ("half", rss[h]), ("end", rss[-1]), ("max", rss.max()))},

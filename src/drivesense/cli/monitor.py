@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import signal
 import sys
 import time
@@ -105,7 +106,7 @@ def register(app: typer.Typer) -> None:
         http: Annotated[Optional[str], typer.Option(help="Serve the dashboard and API on HOST:PORT "
                                                     "(--demo: 127.0.0.1:8765).")] = None,
         events: Annotated[Optional[Path], typer.Option("--events", help="Append events to this JSONL log "
-                                                       "(fsync per event).")] = None,
+                                                       "(every event fsync-ed).")] = None,
         archive: Annotated[Optional[str], typer.Option(help="Archive events and their signal segments here "
                                                        "(SQLite file or PostgreSQL DSN).")] = None,
         mqtt: Annotated[Optional[str], typer.Option("--mqtt", help="Publish alarms to this broker "
@@ -181,6 +182,10 @@ def register(app: typer.Typer) -> None:
         # the loop thread computes while paho's network threads wait for the GIL to hand over messages:
         # a 1 ms switch interval (Python's default is 5 ms) keeps that hand-over off the alarm latency
         sys.setswitchinterval(1e-3)
+        # everything imported and built so far lives as long as the service: frozen out of the collector's
+        # full passes, which would otherwise walk it (tens of ms on the loop thread) every few seconds
+        gc.collect()
+        gc.freeze()
         began = time.time()
         asyncio.run(_run(service, cfg.http, asyncio.Event(), until_finished=finite, duration=duration))
         wall = time.time() - began

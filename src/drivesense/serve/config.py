@@ -4,7 +4,7 @@
 
     [service]
     http = "127.0.0.1:8765"            # dashboard and API (optional)
-    events = "events.jsonl"            # append-only event log (fsync per event)
+    events = "events.jsonl"            # append-only event log (every event fsync-ed)
     archive = "monitor.sqlite"         # events + signal segments (SQLite file or PostgreSQL DSN; optional)
     mqtt = "mqtt://127.0.0.1:1883"     # alarms on {machine}/alarm, stop requests on {machine}/stop (optional)
     webhook = "https://example.com/hook"   # each event POSTed as JSON (optional)

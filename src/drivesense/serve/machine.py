@@ -5,7 +5,7 @@
     mon = MachineMonitor("vmc1", [AxisPipeline("x", estimator, detectors)])
     records = mon.process(chunk)          # event records (dicts with an id), in time order
     mon.force_history(5.0)                # the last 5 s of estimated force, for the dashboard
-    mon.take_segments()                   # (event record, Recording) once the signal after an event is in
+    mon.take_segments()                   # (event record, Segment) once the signal after an event is in
 
 Every chunk is checked before it touches a state: the machine id, the
 sequence number (a repeated or older chunk is dropped; a missing one is
@@ -34,10 +34,39 @@ from drivesense.monitor.overload import OverloadDetector
 from drivesense.recording import Recording
 from drivesense.serve.wire import Chunk
 
-__all__ = ["AxisPipeline", "MachineMonitor", "Ring", "FeedSpeedStream", "event_id", "event_record"]
+__all__ = ["AxisPipeline", "MachineMonitor", "Ring", "FeedSpeedStream", "Segment", "event_id", "event_record"]
 
 #: Signal kept around each event for the archive [s] (before, after).
 SEGMENT_S = (1.0, 0.5)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The signal around one event, copied out of the ring buffers (cheap: no Recording is built yet).
+
+    Building the :class:`~drivesense.recording.Recording` costs milliseconds, so it is left to whoever
+    stores the segment (the archive's worker thread), off the path of the alarms.
+
+    Attributes
+    ----------
+    channels : dict
+        Channel name -> samples (drive signals in SI units, ``force_<axis>`` [N]).
+    fs : float
+        Sample rate [Hz].
+    t0 : float
+        Time of the first sample [s], on the machine's sample clock.
+    meta : dict
+        ``name``, ``machine``, ``event_id``, ``event_kind``.
+    """
+
+    channels: dict
+    fs: float
+    t0: float
+    meta: dict
+
+    def recording(self) -> Recording:
+        """The segment as a Recording."""
+        return Recording.from_arrays(self.channels, fs=self.fs, t0=self.t0, meta=self.meta)
 
 
 class Ring:
@@ -296,6 +325,30 @@ class MachineMonitor:
         self.rejected += 1
         self.last_error = reason
 
+    def warm_up(self, fs: float = 10e3, seconds: float = 0.2) -> None:
+        """Run a synthetic chunk through a twin of this pipeline, so compiled code is loaded now.
+
+        The first chunk of a process otherwise pays for loading the compiled (numba) kernels -- tens of
+        milliseconds on the event loop, in front of every machine's next chunk.  This machine's own state
+        is untouched.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate of the synthetic chunk [Hz] (the kernels do not depend on it).
+        seconds : float
+            Its length [s].
+        """
+        n = max(8, int(round(fs * seconds)))
+        rng = np.random.default_rng(0)
+        t = np.arange(n) / fs
+        arrays = {c: 1e-3 * rng.standard_normal(n) for c in self.required}
+        arrays["spindle_speed"] = np.full(n, 2 * np.pi * 100.0)            # 6000 min^-1 [rad/s]
+        for c in {c for c in self.required if c.endswith("_table_position")} | {"x_table_position"}:
+            arrays[c] = 0.01 * t                                          # 10 mm/s [m]
+        twin = MachineMonitor(self.machine, self.axes, history_s=self.history_s)
+        twin.process(Chunk(self.machine, 0, 0.0, fs, arrays))
+
     # ------------------------------------------------------------------ processing
     def _start(self, chunk: Chunk) -> None:
         self.fs = float(chunk.fs)
@@ -396,15 +449,15 @@ class MachineMonitor:
             start = max(index - before, end - ring.capacity, 0)
             n = end - start
             channels = {c: self._rings[c].last(n) for c in self._rings}
-            seg = Recording.from_arrays(channels, fs=self.fs, t0=self._t0 + start / self.fs,
-                                        meta={"name": f"{record['id']} segment", "machine": self.machine,
-                                              "event_id": record["id"], "event_kind": record["kind"]})
+            seg = Segment(channels, fs=self.fs, t0=self._t0 + start / self.fs,
+                          meta={"name": f"{record['id']} segment", "machine": self.machine,
+                                "event_id": record["id"], "event_kind": record["kind"]})
             self._ready.append((record, seg))
 
     def take_segments(self) -> list:
-        """Events whose segment is complete: ``(record, Recording)`` pairs, taken once.
+        """Events whose segment is complete: ``(record, Segment)`` pairs, taken once.
 
-        The Recording holds the drive signals and the estimated forces from 1 s before the event to 0.5 s
+        The :class:`Segment` holds the drive signals and the estimated forces from 1 s before the event to 0.5 s
         after it (:data:`SEGMENT_S`).
         """
         ready, self._ready = self._ready, []

@@ -224,13 +224,12 @@ class MQTTSource(Source):
         self._link = link = BrokerLink.shared(self.host, self.port, self.client_id)
         route = link.add(self.topic, self.max_pending)
         waiter = asyncio.ensure_future(stop.wait())
+        waiter.add_done_callback(lambda _: route.ready.set())     # stopping wakes the wait below
         try:
             while not stop.is_set():
                 if not route.inbox:
                     route.ready.clear()
-                    ready = asyncio.ensure_future(route.ready.wait())
-                    await asyncio.wait([ready, waiter], return_when=asyncio.FIRST_COMPLETED)
-                    ready.cancel()
+                    await route.ready.wait()              # one future per wake-up, nothing else
                     continue
                 topic, payload, arrival = route.inbox.popleft()
                 route.slots.release()

@@ -1,8 +1,10 @@
 """Where the live monitor's events go: an append-only JSONL log, the archive, MQTT alarms, a webhook.
 
-The log is the record of truth.  Each event is written and ``fsync``-ed
-before anything else hears of it, so an event the service announced survives
-a ``kill -9``; on a restart the log is read back (a line torn by the kill is
+The log is the record of truth.  Each event is written to it (one ``write``
+system call: from then on the kernel holds it, and a ``kill -9`` of the
+service cannot lose it) before anything else hears of it, and ``fsync``-ed
+by a syncer thread right after (group commit: the alarm does not wait for
+the disk, and an event on disk survives a power loss too); on a restart the log is read back (a line torn by the kill is
 cut off), and an event already in it -- the same id, because the same
 samples give the same event -- is not written or announced again.  The
 archive is filled from a worker thread (an event row and its signal segment
@@ -34,7 +36,11 @@ STOP_KINDS = ("breakage", "collision", "overload", "missing_tool")
 
 
 class EventLog:
-    """Append-only JSONL event log, fsync per event; the ids already logged are refused.
+    """Append-only JSONL event log, every event fsync-ed; the ids already logged are refused.
+
+    :meth:`append` returns once the line is written (safe from a ``kill -9``); a syncer thread ``fsync``-s
+    what was written since its last pass (safe from a power loss), so the caller -- the alarm -- never
+    waits for the disk.  :meth:`sync` waits for it.
 
     Parameters
     ----------
@@ -52,10 +58,15 @@ class EventLog:
         self.seq = 0
         self.recovered = 0
         self._fh = None
+        self.written = self.synced = 0            # lines written / known to be on disk
+        self._cond = threading.Condition()
+        self._syncer: threading.Thread | None = None
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._load()
             self._fh = open(self.path, "ab", buffering=0)
+            self._syncer = threading.Thread(target=self._sync_loop, name="drivesense-eventlog-sync", daemon=True)
+            self._syncer.start()
 
     def _load(self) -> None:
         if not self.path.exists():
@@ -83,11 +94,41 @@ class EventLog:
     def _write(self, obj: dict) -> None:
         if self._fh is None:
             return
-        self._fh.write(json.dumps(obj, allow_nan=False).encode() + b"\n")
-        os.fsync(self._fh.fileno())
+        self._fh.write(json.dumps(obj, allow_nan=False).encode() + b"\n")     # unbuffered: one write(2)
+        with self._cond:
+            self.written += 1
+            self._cond.notify_all()
+
+    def _sync_loop(self) -> None:
+        """The syncer thread: fsync whatever was written since the last pass (group commit), until closed."""
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self.written > self.synced or self._fh is None)
+                fh, target = self._fh, self.written
+            if fh is None:
+                return
+            try:
+                os.fsync(fh.fileno())
+            except (OSError, ValueError):          # closed under us: close() syncs what is left
+                return
+            with self._cond:
+                self.synced = max(self.synced, target)
+                self._cond.notify_all()
+
+    def sync(self, timeout: float | None = None) -> bool:
+        """Wait until every line written so far is fsync-ed; False if ``timeout`` [s] passed first.
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Longest wait [s] (default: no limit).
+        """
+        with self._cond:
+            target = self.written
+            return self._fh is None or self._cond.wait_for(lambda: self.synced >= target, timeout)
 
     def append(self, record: dict) -> dict | None:
-        """Log an event (fsync-ed on return); None when its id is already logged.
+        """Log an event (written on return, fsync-ed by the syncer thread); None when its id is already logged.
 
         Parameters
         ----------
@@ -124,6 +165,7 @@ class EventLog:
             raise MissingChannelError(f"no event with id {event_id!r}")
         ack = {"ack": event_id, "by": str(by)[:64], "at": time.time()}
         self._write(ack)
+        self.sync()
         self.acknowledged[event_id] = ack
         return ack
 
@@ -141,10 +183,16 @@ class EventLog:
         return out[-limit:]
 
     def close(self) -> None:
-        """Close the file."""
-        if self._fh is not None:
-            self._fh.close()
-            self._fh = None
+        """Sync what is written and close the file."""
+        if self._fh is None:
+            return
+        self.sync()
+        with self._cond:
+            fh, self._fh = self._fh, None
+            self._cond.notify_all()
+        self._syncer.join()
+        os.fsync(fh.fileno())
+        fh.close()
 
 
 class AlarmPublisher:
@@ -334,10 +382,11 @@ class ArchiveWriter(_Worker):
         Parameters
         ----------
         item : tuple
-            The record and its segment Recording (or None).
+            The record and its :class:`~drivesense.serve.machine.Segment` (or None).
         """
         record, segment = item
-        self.store.add_event({k: v for k, v in record.items() if k != "acknowledged"}, segment)
+        self.store.add_event({k: v for k, v in record.items() if k != "acknowledged"},
+                             None if segment is None else segment.recording())
 
     def close(self, timeout: float = 30.0) -> None:
         """Finish what is queued and close the archive.

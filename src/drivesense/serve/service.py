@@ -11,7 +11,8 @@ worker task joined by a bounded queue: a source that outruns the worker waits
 (backpressure), it never piles up memory.  A source that fails is restarted
 after a back-off (1 s growing to 10 s) while the other machines go on; a
 chunk that cannot be used is counted against its machine.  Events are
-logged (fsync) first, then published.  Dashboard subscribers get frames
+written to the log first (safe from a kill), then published; the log's
+syncer thread fsyncs them meanwhile, off the alarm's path.  Dashboard subscribers get frames
 through queues of two: a slow browser loses frames, never events (those it
 can re-read with ``/api/events?since=``).
 """
@@ -178,6 +179,8 @@ class MonitorService:
         """
         stop = stop or asyncio.Event()
         self._open_outputs()
+        for m in self.machines.values():
+            m.monitor.warm_up()                       # compiled code loaded before the first chunk, not during
         self.running = True
         for m in self.machines.values():
             m.queue = asyncio.Queue(maxsize=self.queue_chunks)
