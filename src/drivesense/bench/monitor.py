@@ -138,10 +138,13 @@ def _realtime_child(n: int, seconds: float, chunk_s: float, out: str, core: int 
         specs.append(spec)
 
     async def main() -> None:
-        stop, t0, c0 = asyncio.Event(), time.perf_counter(), time.process_time()
-        task = asyncio.create_task(MonitorService(specs).run(stop))
+        stop, service = asyncio.Event(), MonitorService(specs)
+        task = asyncio.create_task(service.run(stop))
+        while service.started is None:                # the clock starts with the sources (after the warm-up)
+            await asyncio.sleep(0.001)
+        t0, c0 = time.time(), time.process_time()
         await asyncio.sleep(seconds)
-        el = time.perf_counter() - t0
+        el = time.time() - t0
         res.update(elapsed_s=el, cpu_s=time.process_time() - c0, queue_max_seen=depth[0], lag=_stats_ms(lags),
                    due_samples=n * max(0, int(el / chunk_s) - 1) * specs[0].source.chunk_n,  # the last in flight
                    processed_samples=sum(s.monitor.samples for s in specs),

@@ -43,14 +43,6 @@ def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
     return rec, detector_inputs(rec, forces)
 
 
-def tool_teeth(rec, teeth: Optional[int]) -> Optional[int]:
-    """``--teeth``, else the flutes of the tool the trace's metadata names (None when neither says)."""
-    if teeth is not None:
-        return teeth
-    tool = rec.meta.get("tool") if isinstance(rec.meta.get("tool"), dict) else None
-    return int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
-
-
 def register(app: typer.Typer) -> None:
     """Add ``detect`` and ``teach`` to the root app."""
 
@@ -84,7 +76,7 @@ def register(app: typer.Typer) -> None:
         from drivesense.io import read_json_file
         from drivesense.monitor import TeachLimits
         from drivesense.monitor.detector import events_to_json
-        from drivesense.monitor.pipeline import default_detectors, run_detectors
+        from drivesense.monitor.pipeline import detect_in_trace
 
         check_output(json_path, "--json")
         if plot is not None:
@@ -100,25 +92,10 @@ def register(app: typer.Typer) -> None:
                               axis_name=axis_name)
         read = trace_reader(fs, resample, assume_si, bad_samples)
         rec, inputs = _forces(trace, read, est, method, idle, tare, axis_name)
-        if "spindle_speed" not in inputs.channels and spindle_rpm is None:
-            raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
-        z = tool_teeth(rec, teeth)
-        rpm = spindle_rpm
-        if rpm is None:                        # the trace's own speed: it sets the latency the detectors declare
-            import numpy as np
-
-            rpm = float(np.median(inputs["spindle_speed"])) * 60.0 / (2 * np.pi)
-            rpm = rpm if rpm > 0 else None
-        band = getattr(getattr(est, "signal", None), "lpf_hz", None)
-        axes = [c.split("_", 1)[1] for c in inputs.channels if c.startswith("force_")]
-        detectors = []
-        for ax in axes:
-            dets = default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=taught if ax == axes[0] else None,
-                                     force_limit_n=force_limit if force_limit is not None else
-                                     (taught.force_limit_n if taught else None), band_hz=band,
-                                     baseline_revs=baseline_revs)
-            detectors += dets
-        report = run_detectors(inputs, detectors)
+        found = detect_in_trace(rec, inputs, band_hz=getattr(getattr(est, "signal", None), "lpf_hz", None),
+                                teeth=teeth, spindle_rpm=spindle_rpm, limits=taught, force_limit_n=force_limit,
+                                baseline_revs=baseline_revs)
+        report, detectors, z = found.report, found.detectors, found.teeth
         payload = events_to_json(report.events, report.latency_s)
         payload.update({"trace": str(trace), "method": method, "detectors": [d.name for d in detectors],
                         "teeth": z, "estimator_latency_s": float(inputs.meta["latency_s"])})
@@ -129,7 +106,8 @@ def register(app: typer.Typer) -> None:
             from drivesense.plot import plot_events, save_figure
 
             truth = rec.meta.get("truth", {}).get("events") if isinstance(rec.meta.get("truth"), dict) else None
-            save_figure(plot_events(inputs, report, channel=f"force_{axes[0]}", truth=truth,
+            first = next(c for c in inputs.channels if c.startswith("force_"))
+            save_figure(plot_events(inputs, report, channel=first, truth=truth,
                                     title=f"{trace.name}: {len(report.events)} event(s)"), plot)
         table = Table(title=escape(f"events in {trace.name} ({method})"))
         for col in ("time [s]", "kind", "axis", "confidence", "evidence"):

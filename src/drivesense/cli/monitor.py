@@ -17,7 +17,7 @@ from rich.table import Table
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader,
                                    write_json)
 from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
-                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt, tool_teeth)
+                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt)
 
 __all__ = ["register"]
 
@@ -37,6 +37,7 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
                    baseline_revs, axis_name, axes_file, model_dir, speed):
     """The one-machine configuration of ``--replay TRACE`` (the options of ``drivesense detect``)."""
     from drivesense.errors import ConfigError
+    from drivesense.monitor.pipeline import tool_teeth
     from drivesense.serve.config import MonitorConfig, build_axis
     from drivesense.serve.machine import MachineMonitor
     from drivesense.serve.service import MachineSpec

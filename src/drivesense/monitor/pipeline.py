@@ -27,7 +27,8 @@ from drivesense.monitor.overload import OverloadDetector
 from drivesense.monitor.teach import TeachInDetector, TeachLimits
 from drivesense.recording import Recording
 
-__all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "run_detectors", "DetectionReport"]
+__all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "run_detectors", "DetectionReport",
+           "tool_teeth", "detect_in_trace", "TraceDetection"]
 
 #: Smoothing of the path speed [s].
 FEED_SMOOTHING_S = 50e-3
@@ -182,3 +183,83 @@ def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bo
         stats[det.name] = (out.statistic, out.threshold)
         latency = max(latency, stream.latency_s + extra)
     return DetectionReport(sorted(events, key=lambda e: e.time_s), latency, stats, list(detectors))
+
+
+def tool_teeth(trace: Recording, teeth: int | None) -> int | None:
+    """``teeth`` if given, else the flutes of the tool the trace's metadata names (None when neither says).
+
+    Parameters
+    ----------
+    trace : Recording
+        The trace (``meta["tool"]["flutes"]``).
+    teeth : int, optional
+        The number of teeth given by the user (``--teeth``).
+    """
+    if teeth is not None:
+        return teeth
+    tool = trace.meta.get("tool") if isinstance(trace.meta.get("tool"), dict) else None
+    return int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
+
+
+@dataclass
+class TraceDetection:
+    """What :func:`detect_in_trace` found and how it looked.
+
+    Attributes
+    ----------
+    report : DetectionReport
+        Events, statistics and the declared latency.
+    detectors : list of Detector
+        The detectors run (every axis).
+    teeth : int or None
+        Teeth used (None: breakage and chipping were not looked for).
+    spindle_rpm : float or None
+        Spindle speed the detectors were given [min^-1].
+    """
+
+    report: DetectionReport
+    detectors: list
+    teeth: int | None
+    spindle_rpm: float | None
+
+
+def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | None = None, teeth: int | None = None,
+                    spindle_rpm: float | None = None, limits: TeachLimits | None = None,
+                    force_limit_n: float | None = None, baseline_revs: int | None = None) -> TraceDetection:
+    """Run the default detectors on every estimated force of a trace (``drivesense detect``'s rule).
+
+    The teeth come from ``teeth`` or the trace's tool; the spindle speed from ``spindle_rpm`` or the median
+    of the trace's ``spindle_speed`` (it sets the latency the detectors declare); the taught limits serve the
+    first axis.
+
+    Parameters
+    ----------
+    trace : Recording
+        The drive-signal trace (its metadata may name the tool).
+    inputs : Recording
+        :func:`detector_inputs` of the trace and its estimated forces.
+    band_hz : float, optional
+        The estimate's bandwidth [Hz].
+    teeth, spindle_rpm, limits, force_limit_n, baseline_revs
+        As in :func:`default_detectors` (``--teeth``, ``--spindle-rpm``, ``--limits``, ``--force-limit``,
+        ``--baseline-revs``).
+
+    Raises
+    ------
+    ConfigError
+        Neither a ``spindle_speed`` channel nor ``spindle_rpm``.
+    """
+    if "spindle_speed" not in inputs.channels and spindle_rpm is None:
+        raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
+    z = tool_teeth(trace, teeth)
+    rpm = spindle_rpm
+    if rpm is None:
+        rpm = float(np.median(inputs["spindle_speed"])) * 60.0 / (2 * np.pi)
+        rpm = rpm if rpm > 0 else None
+    axes = [c.split("_", 1)[1] for c in inputs.channels if c.startswith("force_")]
+    limit = force_limit_n if force_limit_n is not None else (limits.force_limit_n if limits else None)
+    detectors: list[Detector] = []
+    for ax in axes:
+        detectors += default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=limits if ax == axes[0] else None,
+                                       force_limit_n=limit, band_hz=band_hz, baseline_revs=baseline_revs)
+    return TraceDetection(run_detectors(inputs, detectors), detectors, z, rpm)

@@ -325,6 +325,11 @@ class MachineMonitor:
         self.rejected += 1
         self.last_error = reason
 
+    @property
+    def kind(self) -> tuple:
+        """The classes of this machine's estimators and detectors, axis by axis (machines alike share code)."""
+        return tuple((type(a.estimator).__name__, *(type(d).__name__ for d in a.detectors)) for a in self.axes)
+
     def warm_up(self, fs: float = 10e3, seconds: float = 0.2) -> None:
         """Run a synthetic chunk through a twin of this pipeline, so compiled code is loaded now.
 

@@ -163,6 +163,8 @@ class MonitorService:
         self.webhook: Webhook | None = None
         self.archive: ArchiveWriter | None = None
         self.running = False
+        #: When the sources were started [s since the epoch] (None before :meth:`run`).
+        self.started: float | None = None
         #: Callables ``f(record)`` called with every newly logged event (the CLI prints them).
         self.listeners: list = []
 
@@ -179,9 +181,13 @@ class MonitorService:
         """
         stop = stop or asyncio.Event()
         self._open_outputs()
-        for m in self.machines.values():
-            m.monitor.warm_up()                       # compiled code loaded before the first chunk, not during
+        warmed: set = set()
+        for m in self.machines.values():              # compiled code loaded before the first chunk, not during:
+            if m.monitor.kind not in warmed:          # once per kind of pipeline (the code is per process)
+                warmed.add(m.monitor.kind)
+                m.monitor.warm_up()
         self.running = True
+        self.started = time.time()
         for m in self.machines.values():
             m.queue = asyncio.Queue(maxsize=self.queue_chunks)
             m.tasks = [asyncio.create_task(self._source_loop(m, stop), name=f"source-{m.id}"),
