@@ -9,7 +9,7 @@ __all__ = ["run_accuracy", "run_condition", "ConditionResult", "run_speed", "mac
 
 
 #: Parts of the bench, in the order ``all`` runs them.
-BENCH_KINDS = ("accuracy", "speed", "identify", "learn", "wear", "io", "nc", "events", "monitor")
+BENCH_KINDS = ("accuracy", "speed", "identify", "learn", "wear", "io", "nc", "events", "monitor", "fleet")
 
 #: Where each optional part lives: module and function returning a dict to merge into the bench JSON.
 _PARTS = {"learn": ("drivesense.bench.learn", "run_learn_bench"),
@@ -17,7 +17,8 @@ _PARTS = {"learn": ("drivesense.bench.learn", "run_learn_bench"),
           "io": ("drivesense.bench.io", "run_io_bench"),
           "nc": ("drivesense.bench.nc", "run_nc_bench"),
           "events": ("drivesense.bench.events", "run_events_bench"),
-          "monitor": ("drivesense.bench.monitor", "run_monitor_bench")}
+          "monitor": ("drivesense.bench.monitor", "run_monitor_bench"),
+          "fleet": ("drivesense.bench.fleet", "run_fleet_bench")}
 
 
 def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> dict:
@@ -25,7 +26,7 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
 
     Parameters
     ----------
-    kind : {"accuracy", "speed", "identify", "learn", "wear", "io", "nc", "events", "monitor", "all"}
+    kind : {"accuracy", "speed", "identify", "learn", "wear", "io", "nc", "events", "monitor", "fleet", "all"}
         Which part to run.
     axis : BallScrewAxis, optional
         Estimator axis parameters (default: Table 1).

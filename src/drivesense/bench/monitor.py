@@ -40,7 +40,7 @@ from drivesense.serve.sources import ReplaySource, SimulatedSource, demo_conditi
 from drivesense.serve.wire import MAGIC, Chunk, decode_chunk, encode_chunk
 from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
-__all__ = ["run_monitor_bench", "TARGETS", "CUT_S"]
+__all__ = ["run_monitor_bench", "setup_demo_axis", "TARGETS", "CUT_S"]
 
 #: The issue's targets.
 TARGETS = {"axes_per_core_min": 50, "alarm_p99_ms_max": 5.0, "memory_mb_per_signal_hour_max": 5.0}
@@ -265,7 +265,7 @@ def _publish_child(url: str, machines: list, seconds: float, out: str, core: int
     Path(out).write_text(json.dumps({"sent": sent}))
 
 
-def _setup_axis(work: Path) -> None:
+def setup_demo_axis(work: Path) -> None:
     """AXIS.toml (``drivesense axis --out``) and the demo's simulated idle runs ``idle*.nc`` in ``work``."""
     subprocess.run([sys.executable, "-c", _CLI, "axis", "--out", str(work / "AXIS.toml")], check=True,
                    stdout=subprocess.DEVNULL)
@@ -552,7 +552,7 @@ def run_monitor_bench(progress=None, *, quick: bool = False) -> dict:
         if binary is None or importlib.util.find_spec("paho") is None:
             out["latency"] = out["faults"] = {"not measured": "mosquitto (or paho-mqtt) not installed"}
         else:
-            _setup_axis(work)
+            setup_demo_axis(work)
             for part, fn in (("latency", _latency), ("faults", _faults)):
                 def one(fn=fn, folder=work / f"broker-{part}") -> dict:
                     broker = LocalBroker(folder)

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from drivesense.cli import (archive, core, detect, feedpower, identify_frf, identify_linear, identify_nc, learn,
+from drivesense.cli import (archive, batch, core, detect, feedpower, identify_frf, identify_linear, identify_nc, learn,
                             monitor, mtconnect, plot_cmd, sensor, wear, xml_cmd)
 
 __all__ = ["app", "identify_app", "main"]
@@ -55,7 +55,8 @@ identify_frf.register(identify_app)
 identify_linear.register(identify_app)
 identify_nc.register(identify_app)
 app.add_typer(identify_app, name="identify")
-for module in (detect, monitor, learn, wear, feedpower, sensor, xml_cmd, archive, mtconnect, plot_cmd):
+for module in (detect, monitor, batch, learn, wear, feedpower, sensor, xml_cmd, archive, mtconnect,
+               plot_cmd):
     module.register(app)
 
 

@@ -318,7 +318,7 @@ def friction(
 @friendly
 def bench(
     kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | events | "
-                                              "monitor | all")] = "all",
+                                              "monitor | fleet | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
@@ -352,7 +352,7 @@ def bench(
         console.print(f"VibrationMode with the chirp-identified axis: worst NRMSE "
                       f"{ident['vibration_with_identified_worst_nrmse'] * 100:.2f} % over the 10 conditions",
                       markup=False)
-    for part in ("wear", "io", "learn", "nc", "events", "monitor"):
+    for part in ("wear", "io", "learn", "nc", "events", "monitor", "fleet"):
         if part in result and isinstance(result[part], dict):
             _print_targets(part, result[part])
     write_json(json_path, result)
