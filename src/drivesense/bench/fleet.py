@@ -107,7 +107,8 @@ def _on_cluster(job, items, out: Path, warm: Path, workers: int) -> tuple[float,
 def _resume(work: Path, folder: Path, n: int, serial_out: Path, keys) -> dict:
     """Kill ``drivesense batch detect`` half-way (SIGKILL, process group), run it again; what was redone."""
     out = work / "resume"
-    cmd = [sys.executable, "-c", _CLI, "batch", "detect", str(folder), "--teeth", "2", "--axis", str(work / "AXIS.toml"),
+    cmd = [sys.executable, "-c", _CLI, "batch", "detect", str(folder), "--teeth", "2", "--axis",
+           str(work / "AXIS.toml"),
            *(a for p in sorted(work.glob("idle*.nc")) for a in ("--idle", str(p))), "--out", str(out),
            "--workers", "2", "--json", str(work / "resume.json")]
     log = open(work / "resume-first.log", "wb")

@@ -56,6 +56,10 @@ def _inputs(inputs, archive, query, machine, out: Path):
 def _run(job, inputs, archive, query, machine, out: Path, workers, scheduler, retry_failed, json_path) -> None:
     from drivesense.fleet.batch import run_batch
 
+    from drivesense.errors import ConfigError
+
+    if workers is not None and workers < 0:
+        raise ConfigError(f"--workers must be >= 0, got {workers!r}")
     items = _inputs(inputs, archive, query, machine, out)
     n_workers = (os.cpu_count() or 1) if workers is None else workers
     with progress_bar() as bar:

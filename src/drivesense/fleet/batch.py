@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from drivesense.errors import ConfigError
-from drivesense.fleet.inputs import BatchInput
+from drivesense.fleet.inputs import BatchInput, derived_id
 from drivesense.fleet.jobs import BatchJob
 
 __all__ = ["run_batch", "run_task", "task_key", "BatchReport", "read_rows", "local_cluster", "ROWS", "RESULTS",
@@ -385,16 +385,16 @@ class _ArchiveWriteBack:
             from drivesense.io import read_recording
             from drivesense.io.xml_format import Experiment
 
-            exp_id = f"{item.experiment}-estimate-{row['key'][:12]}"
+            exp_id = derived_id(item.experiment, "estimate", row["key"])
             try:
                 store.show(exp_id)
                 return 0
             except KeyError:
                 pass
             force = read_recording(first)
-            force.meta.update({"name": f"{force.meta.get('name') or 'force'} of {item.experiment}",
-                               "derived_from": item.experiment, "batch_key": row["key"],
-                               **({"machine": item.machine} if item.machine else {})})
+            force = force.with_meta(name=f"{force.meta.get('name') or 'force'} of {item.experiment}",
+                                    derived_from=item.experiment, batch_key=row["key"],
+                                    **({"machine": item.machine} if item.machine else {}))
             store.add(Experiment.from_recordings(force, id=exp_id))
             return 1
         if kind == "detect":

@@ -1,6 +1,7 @@
 """What a batch runs over: files matched by globs, or experiments an archive query finds.
 
-Every input carries a *content* key: the BLAKE2b digest of a file's bytes (a
+Every input carries a *content* key: the BLAKE2b digest of a file's bytes (and of
+a CSV's metadata sidecar ``FILE.csv.json``; a
 cache next to the batch's results keeps the digests of files whose size and
 modification time did not change, so a rerun over a folder of thousands of
 recordings reads only the new ones), or, for an archived experiment, its id,
@@ -13,16 +14,34 @@ from __future__ import annotations
 import glob
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from drivesense.errors import ConfigError
 from drivesense.fleet.jobs import file_digest
 
-__all__ = ["BatchInput", "files_from_patterns", "file_inputs", "archive_inputs", "TRACE_SUFFIXES"]
+__all__ = ["BatchInput", "files_from_patterns", "file_inputs", "archive_inputs", "derived_id", "TRACE_SUFFIXES"]
 
 #: What a folder given as an input contributes.
 TRACE_SUFFIXES = (".nc", ".csv", ".xml")
+#: Ids of the experiments a batch writes back into an archive (never inputs of a batch themselves).
+_DERIVED = re.compile(r"-(estimate)-[0-9a-f]{12}$")
+
+
+def derived_id(experiment: str, kind: str, key: str) -> str:
+    """The id of a batch result written back into the archive: ``<experiment>-<kind>-<key[:12]>``.
+
+    Parameters
+    ----------
+    experiment : str
+        The input experiment's id.
+    kind : str
+        The job (``estimate``).
+    key : str
+        The input's batch key.
+    """
+    return f"{experiment}-{kind}-{key[:12]}"
 
 
 @dataclass(frozen=True)
@@ -119,15 +138,22 @@ def file_inputs(paths: list[Path], cache: Path | None = None) -> list[BatchInput
             known = json.loads(cache.read_text())
         except ValueError:
             known = {}                          # a damaged cache is only a cache: hash again
+    from drivesense.io.csv import sidecar_path
+
     out, fresh = [], {}
     for p in paths:
-        st = os.stat(p)
-        key = str(Path(p).resolve())
-        stamp = [st.st_size, st.st_mtime_ns]
-        entry = known.get(key)
-        digest = entry[2] if isinstance(entry, list) and entry[:2] == stamp else file_digest(p)
-        fresh[key] = [*stamp, digest]
-        out.append(BatchInput(name=str(p), content=f"file:{digest}", path=str(p)))
+        parts = [Path(p)]
+        if Path(p).suffix.lower() == ".csv" and sidecar_path(p).exists():
+            parts.append(sidecar_path(p))              # a CSV's metadata sidecar is part of its content
+        digests = []
+        for part in parts:
+            st = os.stat(part)
+            key = str(part.resolve())
+            stamp = [st.st_size, st.st_mtime_ns]
+            entry = known.get(key)
+            digests.append(entry[2] if isinstance(entry, list) and entry[:2] == stamp else file_digest(part))
+            fresh[key] = [*stamp, digests[-1]]
+        out.append(BatchInput(name=str(p), content="file:" + "+".join(digests), path=str(p)))
     if cache is not None and fresh != {k: known.get(k) for k in fresh}:
         write_json_file(cache, {**known, **fresh}, indent=None)
     return out
@@ -136,6 +162,8 @@ def file_inputs(paths: list[Path], cache: Path | None = None) -> list[BatchInput
 def archive_inputs(location: str, *, query: str | None = None, machine: str | None = None,
                    limit: int | None = None) -> list[BatchInput]:
     """Inputs for the experiments an archive search finds (``drivesense archive search``'s words).
+
+    The experiments batches wrote back (:func:`derived_id`) are left out.
 
     Parameters
     ----------
@@ -155,6 +183,9 @@ def archive_inputs(location: str, *, query: str | None = None, machine: str | No
         hits = store.search(query or None, machine=machine, limit=n)
     if not hits:
         raise ConfigError(f"--archive {location}: the query {query or '(all)'!r} finds no experiment")
+    hits = [h for h in hits if not _DERIVED.search(h.id)]       # results of earlier batches are no inputs
+    if not hits:
+        raise ConfigError(f"--archive {location}: the query {query or '(all)'!r} finds only results of batches")
     return [BatchInput(name=f"archive:{h.id}", content=f"archive:{h.id}:{h.created}:{h.samples}",
                        archive=str(location), experiment=h.id, machine=h.machine)
             for h in sorted(hits, key=lambda h: (h.created, h.id))]
