@@ -219,6 +219,8 @@ NO_INPUT_FILE = {
     "dataset build": "simulates its own data (its --out FILE is checked below)",
     "wear simulate": "simulates its own data",
     "sensor simulate": "simulates its own data",
+    "batch wear": "reads its inputs in the tasks: a bad one gets an error row and exit 1 (tests/test_fleet.py)",
+    "batch identify": "reads its inputs in the tasks: a bad one gets an error row and exit 1 (tests/test_fleet.py)",
 }
 #: Each command's input files: argument lists with '{IN}' where the bad file goes (its suffix follows it);
 #: GOOD/AXIS/XML/MODEL/FILTER stand for valid files, OUT for an output path.
@@ -262,6 +264,10 @@ INPUT_FILES = {
     "archive show": [["abc", "--archive", "{IN}.sqlite"]],
     "archive export": [["abc", "--out", "OUT.nc", "--archive", "{IN}.sqlite"]],
     "archive rm": [["abc", "--archive", "{IN}.sqlite"]],
+    "batch estimate": [["GOOD.nc", "--axis", "{IN}.toml", "--idle", "GOOD.nc", "--workers", "0", "--out", "OUT"],
+                       ["GOOD.nc", "--axis", "AXIS", "--idle", "{IN}.nc", "--workers", "0", "--out", "OUT"]],
+    "batch detect": [["GOOD.nc", "--axis", "AXIS", "--tare", "0:0.01", "--limits", "{IN}.json", "--workers", "0",
+                      "--out", "OUT"]],
     "mtconnect probe": [["{IN}.xml"]],
     "mtconnect import": [["{IN}.xml", "--out", "OUT.nc"], ["{IN}.txt", "--out", "OUT.nc"],
                          ["XML", "--devices", "{IN}.xml", "--out", "OUT.nc"]],

@@ -383,6 +383,18 @@ def test_cli_batch_estimate_writes_a_strict_json_report(demo, traces, tmp_path):
     assert (_strict_json(report)["ran"], _strict_json(report)["skipped"]) == (0, 2)
 
 
+
+def test_cli_batch_with_a_failing_input_runs_through_and_exits_1(demo, traces, tmp_path):
+    folder = _copies(traces[:1], tmp_path / "in")
+    (folder / "broken.nc").write_bytes(b"garbage bytes, not a netCDF file")
+    out, report = tmp_path / "out", tmp_path / "report.json"
+    res = invoke("batch", "estimate", folder, *_base(demo, out), "--workers", "0", "--json", report)
+    assert res.exit_code == 1 and "Traceback" not in res.output, res.output
+    assert "failed: " in res.output and "broken.nc" in res.output
+    done = _strict_json(report)
+    assert (done["inputs"], done["ran"], done["failed"]) == (2, 2, 1)
+    assert list(pd.read_parquet(done["summary"])["status"]) == ["error", "ok"]
+
 @pytest.mark.parametrize("args, words", [
     ([], "neither"),
     (["IN", "--query", "steel"], "--archive"),

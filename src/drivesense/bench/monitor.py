@@ -266,7 +266,13 @@ def _publish_child(url: str, machines: list, seconds: float, out: str, core: int
 
 
 def setup_demo_axis(work: Path) -> None:
-    """AXIS.toml (``drivesense axis --out``) and the demo's simulated idle runs ``idle*.nc`` in ``work``."""
+    """AXIS.toml (``drivesense axis --out``) and the demo's simulated idle runs ``idle*.nc`` in ``work``.
+
+    Parameters
+    ----------
+    work : Path
+        The folder (it exists).
+    """
     subprocess.run([sys.executable, "-c", _CLI, "axis", "--out", str(work / "AXIS.toml")], check=True,
                    stdout=subprocess.DEVNULL)
     for i, rec in enumerate(simulate_idle(demo_condition(), replace(ScenarioSettings(), duration=6.0), seed=5000)):

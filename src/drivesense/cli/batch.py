@@ -87,6 +87,8 @@ def _run(job, inputs, archive, query, machine, out: Path, workers, scheduler, re
     if len(failures) > 5:
         console.print(f"... and {len(failures) - 5} more (the summary's 'error' column)", markup=False)
     write_json(json_path, report.to_dict())
+    if report.failed:                                  # the batch ran through; the exit status tells a script
+        raise typer.Exit(1)
 
 
 def _estimate_fields(method, axis_file, axes_file, model_dir, idle, tare, axis_name) -> dict:

@@ -56,7 +56,15 @@ SUMMARY_EVERY_S = 5.0
 
 
 def task_key(item: BatchInput, job_hash: str) -> str:
-    """The key of one input under one job: BLAKE2b-128 of its content key and the job's hash (hex)."""
+    """The key of one input under one job: BLAKE2b-128 of its content key and the job's hash (hex).
+
+    Parameters
+    ----------
+    item : BatchInput
+        The input (its ``content`` key).
+    job_hash : str
+        :meth:`~drivesense.fleet.jobs.BatchJob.config_hash` of the job.
+    """
     return hashlib.blake2b(f"{item.content}|{job_hash}".encode(), digest_size=16).hexdigest()
 
 
@@ -116,7 +124,15 @@ def _local_io():
 
 
 def read_rows(out_dir: Path, keys) -> dict[str, dict]:
-    """Rows already written for ``keys`` (a torn or unreadable row counts as not written)."""
+    """Rows already written for ``keys`` (a torn or unreadable row counts as not written).
+
+    Parameters
+    ----------
+    out_dir : Path
+        The batch's output folder.
+    keys : iterable of str
+        Input keys.
+    """
     import json
 
     rows = {}
@@ -270,6 +286,8 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
         raise ConfigError("the batch has no input")
     if workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {workers!r}")
+    if not (importlib.util.find_spec("pyarrow") and importlib.util.find_spec("pandas")):
+        raise ConfigError("the batch summary is a Parquet table: pip install 'drivesense[fleet]' (pyarrow, pandas)")
     out = Path(out_dir)
     (out / ROWS).mkdir(parents=True, exist_ok=True)
     (out / RESULTS).mkdir(parents=True, exist_ok=True)
@@ -288,7 +306,7 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
     own = client is None
     cluster = None
     dashboard = None
-    archived = [0]
+    archived = 0
     writer = _ArchiveWriteBack(job, out) if any(i.archive for i in items) else None
     last_summary = [time.perf_counter()]
 
@@ -323,10 +341,10 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
         if ordered:
             _write_summary(out / SUMMARY, ordered)
     if writer is not None:
-        archived[0] = writer.write_all([(i, rows[k]) for i, k in zip(items, keys) if i.archive and k in rows])
+        archived = writer.write_all([(i, rows[k]) for i, k in zip(items, keys) if i.archive and k in rows])
     failed = sum(1 for k in set(keys) if rows.get(k, {}).get("status") == "error")
     return BatchReport(job.kind, len(items), len(todo), skipped, failed, time.perf_counter() - began, n_workers,
-                       out / SUMMARY, dashboard, archived[0], ordered)
+                       out / SUMMARY, dashboard, archived, ordered)
 
 
 def _ordered(items, keys, rows) -> list[dict]:

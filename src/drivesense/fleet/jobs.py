@@ -75,17 +75,17 @@ def _stats(values: np.ndarray) -> dict:
 class BatchJob:
     """A method with its options, run on many inputs.  Subclasses set :attr:`kind` and :meth:`_run`.
 
-    Attributes
+    Parameters
     ----------
-    reader : dict
-        ``fs``, ``resample``, ``assume_si``, ``bad_samples``: how CSV traces are read (``--fs`` ...).
+    reader : dict, optional
+        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     """
 
     kind: ClassVar[str] = ""
     #: Suffixes of the result files (the first names the main one).
     outputs: ClassVar[tuple[str, ...]] = ()
     reader: dict = field(default_factory=dict)
-    prepared: bool = field(default=False, repr=False, compare=False)
+    prepared: bool = field(default=False, init=False, repr=False, compare=False)
 
     def ensure_prepared(self) -> None:
         """:meth:`prepare` unless it ran already (a job run in several batches is prepared once)."""
@@ -133,7 +133,15 @@ class BatchJob:
         raise NotImplementedError
 
     def read(self, path: Path, axis_name: str = "x"):
-        """Read a trace file as ``drivesense estimate`` does (units from the header, ``reader`` options)."""
+        """Read a trace file as ``drivesense estimate`` does (units from the header, ``reader`` options).
+
+        Parameters
+        ----------
+        path : Path
+            CSV, .nc or .xml trace.
+        axis_name : str
+            Axis letter of a CSV's bare channel names.
+        """
         from drivesense.io import read_recording
 
         if path.suffix.lower() != ".csv":
@@ -145,14 +153,16 @@ class BatchJob:
 class EstimateJob(BatchJob):
     """Force estimate of each trace (``drivesense estimate``'s methods and friction rules).
 
-    Attributes
+    Parameters
     ----------
+    reader : dict, optional
+        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     method : str
         ``--method``.
     axis_file, axes_file, model_dir : Path, optional
         ``--axis``, ``--axes``, ``--model``.
     idle : list of Path
-        ``--idle`` runs (friction map, fitted once on the client).
+        ``--idle`` runs (friction map, fitted once on the client, in this order).
     tare : tuple of float, optional
         ``--tare START:END`` [s] (applied to each trace).
     axis_name : str
@@ -168,7 +178,7 @@ class EstimateJob(BatchJob):
     idle: list = field(default_factory=list)
     tare: tuple | None = None
     axis_name: str = "x"
-    estimator: Any = field(default=None, repr=False)
+    estimator: Any = field(default=None, init=False, repr=False)
 
     def _config(self) -> dict:
         return {"method": self.method, "axis_name": self.axis_name, "tare": list(self.tare) if self.tare else None,
@@ -190,7 +200,13 @@ class EstimateJob(BatchJob):
         self.estimator = est
 
     def read_input(self, path: Path):
-        """The trace, read as the method needs it (a ball-screw axis' channels, or a 3-axis NC trace)."""
+        """The trace, read as the method needs it (a ball-screw axis' channels, or a 3-axis NC trace).
+
+        Parameters
+        ----------
+        path : Path
+            The input file.
+        """
         est = self._est()
         return self.read(path, self.axis_name) if est.drive == "ballscrew" else self.read(path)
 
@@ -200,7 +216,15 @@ class EstimateJob(BatchJob):
         return self.estimator
 
     def forces(self, rec):
-        """The estimated force Recording of one trace (a tare window calibrates a copy of the estimator)."""
+        """The estimator used and the estimated force Recording of one trace.
+
+        A tare window calibrates a copy of the estimator on the trace.
+
+        Parameters
+        ----------
+        rec : Recording
+            The trace.
+        """
         est = self._est()
         if self.tare is not None:
             est = copy.deepcopy(est)
@@ -240,12 +264,24 @@ def _score(est, rec, force) -> dict | None:
 class DetectJob(EstimateJob):
     """Events in each trace (``drivesense detect``'s estimator, detectors and options).
 
-    Attributes
+    Parameters
     ----------
+    reader : dict, optional
+        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
+    method : str
+        ``--method``.
+    axis_file, axes_file, model_dir : Path, optional
+        ``--axis``, ``--axes``, ``--model``.
+    idle : list of Path
+        ``--idle`` runs (friction map, fitted once on the client, in this order).
+    tare : tuple of float, optional
+        ``--tare START:END`` [s] (applied to each trace).
+    axis_name : str
+        ``--axis-name``.
     teeth : int, optional
         ``--teeth`` (default: the trace's tool).
     spindle_rpm : float, optional
-        ``--spindle-rpm``.
+        ``--spindle-rpm`` [min^-1] (default: the trace's spindle_speed).
     limits : Path, optional
         ``--limits`` LIMITS.json.
     force_limit : float, optional
@@ -261,7 +297,7 @@ class DetectJob(EstimateJob):
     limits: Path | None = None
     force_limit: float | None = None
     baseline_revs: int = 8
-    taught: Any = field(default=None, repr=False)
+    taught: Any = field(default=None, init=False, repr=False)
 
     def _config(self) -> dict:
         return {**super()._config(), "teeth": self.teeth, "spindle_rpm": self.spindle_rpm,
@@ -301,8 +337,10 @@ class DetectJob(EstimateJob):
 class WearJob(BatchJob):
     """Wear history of each session table (``drivesense wear track``).
 
-    Attributes
+    Parameters
     ----------
+    reader : dict, optional
+        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     diameter : float, optional
         Tool diameter [m] when the table has none (``--diameter`` is in mm at the CLI).
     flutes : int, optional
@@ -341,8 +379,10 @@ class WearJob(BatchJob):
 class IdentifyJob(BatchJob):
     """Ball-screw parameters from each FRF excitation trace (``drivesense identify frf``).
 
-    Attributes
+    Parameters
     ----------
+    reader : dict, optional
+        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     fix : dict
         ``--fix``: K_t [N*m/A] and lead [m] required, any fit parameter or T_a, omega_cc optional.
     fmin, fmax : float
@@ -375,7 +415,13 @@ class IdentifyJob(BatchJob):
                               "screw lead [m] are catalogue values; without them the fit has no physical scale")
 
     def read_input(self, path: Path):
-        """The excitation trace (the axis' channels)."""
+        """The excitation trace (the axis' channels).
+
+        Parameters
+        ----------
+        path : Path
+            The input file.
+        """
         return self.read(path, self.axis_name)
 
     def _run(self, rec: Any, out_stem: Path) -> dict:
