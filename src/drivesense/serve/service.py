@@ -185,7 +185,10 @@ class MonitorService:
         for m in self.machines.values():              # compiled code loaded before the first chunk, not during:
             if m.monitor.kind not in warmed:          # once per kind of pipeline (the code is per process)
                 warmed.add(m.monitor.kind)
-                m.monitor.warm_up()
+                try:
+                    m.monitor.warm_up()
+                except Exception:  # noqa: BLE001 - only an optimisation: the first real chunk shows a real problem
+                    pass
         self.running = True
         self.started = time.time()
         for m in self.machines.values():
