@@ -140,7 +140,7 @@ def _realtime_child(n: int, seconds: float, chunk_s: float, out: str, core: int 
     async def main() -> None:
         stop, service = asyncio.Event(), MonitorService(specs)
         task = asyncio.create_task(service.run(stop))
-        while service.started is None:                # the clock starts with the sources (after the warm-up)
+        while service.sources_started is None:        # the clock starts with the sources (after the warm-up)
             await asyncio.sleep(0.001)
         t0, c0 = time.time(), time.process_time()
         await asyncio.sleep(seconds)

@@ -4,7 +4,8 @@ The log is the record of truth.  Each event is written to it (one ``write``
 system call: from then on the kernel holds it, and a ``kill -9`` of the
 service cannot lose it) before anything else hears of it, and ``fsync``-ed
 by a syncer thread right after (group commit: the alarm does not wait for
-the disk, and an event on disk survives a power loss too); on a restart the log is read back (a line torn by the kill is
+the disk, and an event on disk survives a power loss too); on a restart
+the log is read back (a line torn by the kill is
 cut off), and an event already in it -- the same id, because the same
 samples give the same event -- is not written or announced again.  The
 archive is filled from a worker thread (an event row and its signal segment
@@ -59,6 +60,8 @@ class EventLog:
         self.recovered = 0
         self._fh = None
         self.written = self.synced = 0            # lines written / known to be on disk
+        self.sync_errors = 0
+        self.last_sync_error: str | None = None
         self._cond = threading.Condition()
         self._syncer: threading.Thread | None = None
         if self.path is not None:
@@ -109,8 +112,14 @@ class EventLog:
                 return
             try:
                 os.fsync(fh.fileno())
-            except (OSError, ValueError):          # closed under us: close() syncs what is left
+            except ValueError:                     # closed under us: close() syncs what is left
                 return
+            except OSError as exc:                 # a failing disk: said in the metrics, tried again next write
+                self.sync_errors += 1
+                self.last_sync_error = f"{type(exc).__name__}: {exc}"
+                with self._cond:
+                    self._cond.wait_for(lambda: self.written > target or self._fh is None, timeout=1.0)
+                continue
             with self._cond:
                 self.synced = max(self.synced, target)
                 self._cond.notify_all()
@@ -165,7 +174,7 @@ class EventLog:
             raise MissingChannelError(f"no event with id {event_id!r}")
         ack = {"ack": event_id, "by": str(by)[:64], "at": time.time()}
         self._write(ack)
-        self.sync()
+        self.sync(timeout=5.0)
         self.acknowledged[event_id] = ack
         return ack
 
@@ -186,12 +195,16 @@ class EventLog:
         """Sync what is written and close the file."""
         if self._fh is None:
             return
-        self.sync()
+        self.sync(timeout=10.0)
         with self._cond:
             fh, self._fh = self._fh, None
             self._cond.notify_all()
         self._syncer.join()
-        os.fsync(fh.fileno())
+        try:
+            os.fsync(fh.fileno())
+        except OSError as exc:
+            self.sync_errors += 1
+            self.last_sync_error = f"{type(exc).__name__}: {exc}"
         fh.close()
 
 

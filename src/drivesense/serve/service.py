@@ -163,8 +163,8 @@ class MonitorService:
         self.webhook: Webhook | None = None
         self.archive: ArchiveWriter | None = None
         self.running = False
-        #: When the sources were started [s since the epoch] (None before :meth:`run`).
-        self.started: float | None = None
+        #: When :meth:`run` started the sources [s since the epoch] (None before; after the warm-up).
+        self.sources_started: float | None = None
         #: Callables ``f(record)`` called with every newly logged event (the CLI prints them).
         self.listeners: list = []
 
@@ -190,7 +190,7 @@ class MonitorService:
                 except Exception:  # noqa: BLE001 - only an optimisation: the first real chunk shows a real problem
                     pass
         self.running = True
-        self.started = time.time()
+        self.sources_started = time.time()
         for m in self.machines.values():
             m.queue = asyncio.Queue(maxsize=self.queue_chunks)
             m.tasks = [asyncio.create_task(self._source_loop(m, stop), name=f"source-{m.id}"),
@@ -439,6 +439,8 @@ class MonitorService:
                [({"kind": k}, self.counts[f"events_{k}"]) for k in kinds])
         metric("alarms_published_total", "counter", "Alarms published to MQTT.",
                [({}, self.alarms.published if self.alarms else 0)])
+        metric("event_log_sync_errors_total", "counter", "fsyncs of the event log that failed (disk trouble).",
+               [({}, self.log.sync_errors)])
         metric("webhook_failures_total", "counter", "Webhook posts that failed.",
                [({}, self.webhook.failed if self.webhook else 0)])
         metric("dashboard_frames_dropped_total", "counter", "Frames a slow dashboard client did not get.",
