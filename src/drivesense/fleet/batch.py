@@ -257,7 +257,7 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
     Parameters
     ----------
     job : BatchJob
-        The job (prepared here unless it was already).
+        The job (prepared here when there is something to run, unless it was already).
     items : list of BatchInput
         The inputs.
     out_dir : str or Path
@@ -291,8 +291,7 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
     out = Path(out_dir)
     (out / ROWS).mkdir(parents=True, exist_ok=True)
     (out / RESULTS).mkdir(parents=True, exist_ok=True)
-    job.ensure_prepared()
-    job_hash = job.config_hash()
+    job_hash = job.config_hash()                       # the contents it depends on, not the prepared state
     write_json_file(out / f"job-{job.kind}-{job_hash[:12]}.json", {"hash": job_hash, "config": job.config()})
     keys = [task_key(i, job_hash) for i in items]
     rows = read_rows(out, set(keys))
@@ -303,6 +302,8 @@ def run_batch(job: BatchJob, items: list[BatchInput], out_dir: str | Path, *, wo
     for item, key in zip(items, keys):
         if key not in rows:
             todo.setdefault(key, item)                 # the same content twice runs once
+    if todo:
+        job.ensure_prepared()                          # a rerun with nothing to do fits no friction map
     own = client is None
     cluster = None
     dashboard = None
