@@ -54,9 +54,8 @@ def _inputs(inputs, archive, query, machine, out: Path):
 
 
 def _run(job, inputs, archive, query, machine, out: Path, workers, scheduler, retry_failed, json_path) -> None:
-    from drivesense.fleet.batch import run_batch
-
     from drivesense.errors import ConfigError
+    from drivesense.fleet.batch import run_batch
 
     if workers is not None and workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {workers!r}")
