@@ -185,7 +185,7 @@ class EstimateJob(BatchJob):
                 "axis_file": _digest_or_none(self.axis_file, "--axis"),
                 "axes_file": _digest_or_none(self.axes_file, "--axes"),
                 "model": _digest_or_none(self.model_dir, "--model"),
-                "idle": [_digest_or_none(p, "--idle") for p in self.idle]}          # in order: the fit is
+                "idle": [_digest_or_none(p, "--idle") for p in self.idle]}     # in order: the fit depends on it
 
     def prepare(self) -> None:
         from drivesense.estimate.registry import make_from_files
