@@ -13,7 +13,7 @@ from rich.table import Table
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, parse_window,
                                    progress_bar, write_json)
 from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
-                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt)
+                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt, check_detector_options)
 
 __all__ = ["register", "batch_app"]
 
@@ -163,14 +163,9 @@ def detect(
     bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Events in every input ('detect' on each: an .events.json each; counts and kinds in the summary)."""
-    from drivesense.errors import ConfigError
     from drivesense.fleet.jobs import DetectJob
 
-    for name, value, low in (("--spindle-rpm", spindle_rpm, 0), ("--teeth", teeth, 0)):
-        if value is not None and not value > low:
-            raise ConfigError(f"{name} must be > {low}, got {value!r}")
-    if baseline_revs < 3:
-        raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
+    check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs)
     job = DetectJob(reader=_reader(fs, resample, assume_si, bad_samples), teeth=teeth, spindle_rpm=spindle_rpm,
                     limits=limits, force_limit=force_limit, baseline_revs=baseline_revs,
                     **_estimate_fields(method, axis_file, axes_file, model_dir, idle, tare, axis_name))

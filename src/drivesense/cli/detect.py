@@ -31,6 +31,20 @@ ForceLimitOpt = Annotated[Optional[float], typer.Option("--force-limit", help="C
                                                         "(default: the taught one).")]
 
 
+def check_detector_options(*, spindle_rpm: Optional[float] = None, teeth: Optional[int] = None,
+                           baseline_revs: Optional[int] = None) -> None:
+    """Refuse ``--spindle-rpm`` <= 0, ``--teeth`` < 1 and ``--baseline-revs`` < 3 (``detect``, ``batch detect``,
+    ``monitor --replay``), naming the option."""
+    from drivesense.errors import ConfigError
+
+    if spindle_rpm is not None and not spindle_rpm > 0:
+        raise ConfigError(f"--spindle-rpm must be > 0, got {spindle_rpm!r}")
+    if teeth is not None and teeth < 1:
+        raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
+    if baseline_revs is not None and baseline_revs < 3:
+        raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
+
+
 def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
     """The trace and the detector inputs (estimated forces + spindle speed, feed, positions)."""
     from drivesense.monitor.pipeline import detector_inputs
@@ -72,7 +86,6 @@ def register(app: typer.Typer) -> None:
         bad_samples: BadSamplesOpt = None,
     ) -> None:
         """Detect process events (breakage, chipping, chatter, collision, overload, missing tool, teach-in limits)."""
-        from drivesense.errors import ConfigError
         from drivesense.io import read_json_file
         from drivesense.monitor import TeachLimits
         from drivesense.monitor.detector import events_to_json
@@ -81,12 +94,7 @@ def register(app: typer.Typer) -> None:
         check_output(json_path, "--json")
         if plot is not None:
             check_output(plot, "--plot")
-        if spindle_rpm is not None and not spindle_rpm > 0:
-            raise ConfigError(f"--spindle-rpm must be > 0, got {spindle_rpm!r}")
-        if teeth is not None and teeth < 1:
-            raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
-        if baseline_revs < 3:
-            raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
+        check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs)
         taught = None if limits is None else TeachLimits.from_json(read_json_file(limits, "--limits file"))
         est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                               axis_name=axis_name)

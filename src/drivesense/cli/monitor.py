@@ -17,7 +17,8 @@ from rich.table import Table
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader,
                                    write_json)
 from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
-                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt)
+                                   ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt,
+                                   check_detector_options)
 
 __all__ = ["register"]
 
@@ -144,8 +145,7 @@ def register(app: typer.Typer) -> None:
                               + (f" (got {', '.join(given)})" if given else ""))
         if duration is not None and not duration > 0:
             raise ConfigError(f"--duration must be > 0 [s], got {duration!r}")
-        if baseline_revs is not None and baseline_revs < 3:
-            raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
+        check_detector_options(baseline_revs=baseline_revs)
         if config is not None:
             cfg = load_config(config, read=trace_reader(fs, resample, assume_si, bad_samples))
         elif replay is not None:
