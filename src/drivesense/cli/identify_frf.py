@@ -14,9 +14,6 @@ from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOp
 
 __all__ = ["register", "parse_fix"]
 
-#: Catalogue values the fit takes as given when --fix does not name them.
-CATALOGUE_DEFAULTS = {"T_a": 0.2e-3, "omega_cc": 5000.0}
-
 
 def parse_fix(text: str) -> dict[str, float]:
     """Parse ``NAME=VALUE[,NAME=VALUE...]`` (SI) into a dict; ConfigError naming the bad item."""
@@ -50,17 +47,10 @@ def identify_frf(
     bad_samples: BadSamplesOpt = None,
 ) -> None:
     """Fit J_r, M_t, C_t, C_k, D_r, K_r and T_b to the measured FRFs and write AXIS.toml."""
-    from drivesense.errors import ConfigError
-    from drivesense.identify.frf import fit_frf, measure_frf
+    from drivesense.identify.frf import fit_frf, measure_frf, split_fix
     from drivesense.io.axis_file import write_axis_file
 
-    given = parse_fix(fix)
-    missing = [k for k in ("K_t", "lead") if k not in given]
-    if missing:
-        raise ConfigError(f"--fix must give {' and '.join(missing)}: the motor torque constant [N*m/A] and the "
-                          "screw lead [m] are catalogue values; without them the fit has no physical scale")
-    K_t, lead = given.pop("K_t"), given.pop("lead")
-    chain = {k: given.pop(k, v) for k, v in CATALOGUE_DEFAULTS.items()}
+    K_t, lead, chain, given = split_fix(parse_fix(fix))
     rec = read_trace(trace, axis_name, fs=fs, resample=resample, assume_si=assume_si,
                      bad_samples=bad_samples)
     measured = measure_frf(rec, K_t=K_t, lead=lead, axis_name=axis_name, nperseg=nperseg, fmin=fmin, fmax=fmax)

@@ -401,18 +401,14 @@ class IdentifyJob(BatchJob):
     nperseg: int = 8192
     axis_name: str = "x"
 
-    #: Catalogue values the fit takes as given when ``fix`` does not name them.
-    CATALOGUE: ClassVar[dict] = {"T_a": 0.2e-3, "omega_cc": 5000.0}
-
     def _config(self) -> dict:
         return {"fix": dict(sorted(self.fix.items())), "fmin": self.fmin, "fmax": self.fmax,
                 "nperseg": self.nperseg, "axis_name": self.axis_name}
 
     def prepare(self) -> None:
-        missing = [k for k in ("K_t", "lead") if k not in self.fix]
-        if missing:
-            raise ConfigError(f"--fix must give {' and '.join(missing)}: the motor torque constant [N*m/A] and the "
-                              "screw lead [m] are catalogue values; without them the fit has no physical scale")
+        from drivesense.identify.frf import split_fix
+
+        split_fix(self.fix)                            # K_t and lead given: refused on the client, not per input
 
     def read_input(self, path: Path):
         """The excitation trace (the axis' channels).
@@ -425,13 +421,11 @@ class IdentifyJob(BatchJob):
         return self.read(path, self.axis_name)
 
     def _run(self, rec: Any, out_stem: Path) -> dict:
-        from drivesense.identify.frf import fit_frf, measure_frf
+        from drivesense.identify.frf import fit_frf, measure_frf, split_fix
         from drivesense.io import write_json_file
         from drivesense.io.axis_file import write_axis_file
 
-        given = dict(self.fix)
-        K_t, lead = given.pop("K_t"), given.pop("lead")
-        chain = {k: given.pop(k, v) for k, v in self.CATALOGUE.items()}
+        K_t, lead, chain, given = split_fix(self.fix)
         measured = measure_frf(rec, K_t=K_t, lead=lead, axis_name=self.axis_name, nperseg=self.nperseg,
                                fmin=self.fmin, fmax=self.fmax)
         fit = fit_frf(measured, K_t=K_t, lead=lead, fixed=given, **chain)

@@ -37,10 +37,42 @@ from drivesense.machine.signal_chain import SignalParams
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.recording import Recording
 
-__all__ = ["MeasuredFRF", "FRFFit", "measure_frf", "fit_frf", "model_frf", "FIT_PARAMETERS"]
+__all__ = ["MeasuredFRF", "FRFFit", "measure_frf", "fit_frf", "model_frf", "split_fix", "FIT_PARAMETERS",
+           "CATALOGUE_DEFAULTS"]
 
 #: Parameters :func:`fit_frf` can estimate (mechanics in SI, ``T_b`` [s]).
 FIT_PARAMETERS = ("J_r", "M_t", "C_t", "C_k", "D_r", "K_r", "T_b")
+#: Catalogue values the fit takes as given when ``--fix`` does not name them.
+CATALOGUE_DEFAULTS = {"T_a": 0.2e-3, "omega_cc": 5000.0}
+
+
+def split_fix(fix: dict) -> tuple[float, float, dict, dict]:
+    """The known values of a fit (``--fix``) as ``K_t, lead, chain, fixed``.
+
+    Parameters
+    ----------
+    fix : dict
+        Name -> SI value: ``K_t`` [N*m/A] and ``lead`` [m] required; ``T_a`` [s] and ``omega_cc`` [rad/s]
+        (default :data:`CATALOGUE_DEFAULTS`); any of :data:`FIT_PARAMETERS` to hold fixed.
+
+    Returns
+    -------
+    tuple
+        ``K_t``, ``lead``, the signal-chain values (``T_a``, ``omega_cc``) and the fixed fit parameters.
+
+    Raises
+    ------
+    ConfigError
+        ``K_t`` or ``lead`` missing (the message names ``--fix``).
+    """
+    missing = [k for k in ("K_t", "lead") if k not in fix]
+    if missing:
+        raise ConfigError(f"--fix must give {' and '.join(missing)}: the motor torque constant [N*m/A] and the "
+                          "screw lead [m] are catalogue values; without them the fit has no physical scale")
+    given = dict(fix)
+    K_t, lead = given.pop("K_t"), given.pop("lead")
+    chain = {k: given.pop(k, v) for k, v in CATALOGUE_DEFAULTS.items()}
+    return K_t, lead, chain, given
 _LOG_PARAMS = ("J_r", "M_t", "C_t", "C_k", "D_r", "K_r")
 
 
