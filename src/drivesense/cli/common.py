@@ -162,13 +162,10 @@ def read_trace(path: Path, axis_name: str = "x", *, fs: Optional[float] = None, 
     it applies to every format (CSV samples named by file line, the others by sample index).  Repairs and
     notes are printed as ``warning: ...`` lines.
     """
-    from drivesense.io import read_recording
+    from drivesense.io import read_trace as read
 
     with show_warnings():
-        if Path(path).suffix.lower() != ".csv":
-            return read_recording(path, bad_samples=bad_samples)
-        return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si,
-                              bad_samples=bad_samples)
+        return read(path, axis_name, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples)
 
 
 def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, assume_si: bool = False,

@@ -142,11 +142,9 @@ class BatchJob:
         axis_name : str
             Axis letter of a CSV's bare channel names.
         """
-        from drivesense.io import read_recording
+        from drivesense.io import read_trace
 
-        if path.suffix.lower() != ".csv":
-            return read_recording(path, bad_samples=self.reader.get("bad_samples"))
-        return read_recording(path, axis=axis_name, **{k: v for k, v in self.reader.items() if v is not None})
+        return read_trace(path, axis_name, **self.reader)
 
 
 @dataclass

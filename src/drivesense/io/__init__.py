@@ -22,6 +22,7 @@ __all__ = [
     "save_netcdf",
     "load_netcdf",
     "read_recording",
+    "read_trace",
     "write_recording",
     "atomic_output",
     "write_text_file",
@@ -321,6 +322,36 @@ def read_recording(path: str | Path, *, bad_samples: str | None = None, **kw: An
         return screen_recording(rec, bad_samples, source=path.name, stacklevel=2)
     raise ConfigError(f"{path}: unknown file type {suffix or '(no suffix)'!r} "
                       "(known: .csv, .nc, .xml)")
+
+
+def read_trace(path: str | Path, axis_name: str = "x", *, fs: float | None = None, resample: float | None = None,
+               assume_si: bool = False, bad_samples: str | None = None):
+    """Read a drive-signal trace as the commands do: CSV options only for CSV files.
+
+    Parameters
+    ----------
+    path : str or Path
+        A CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment.
+    axis_name : str
+        Axis letter of a CSV's bare channel names (``--axis-name``).
+    fs : float, optional
+        Sample rate [Hz] of a CSV without a time column (``--fs``).
+    resample : float, optional
+        Resample a CSV's jittery time base to this rate [Hz] (``--resample``).
+    assume_si : bool
+        Take a CSV's unit-less columns as SI (``--assume-si``).
+    bad_samples : {"refuse", "repair", "off"}, optional
+        ``--bad-samples``: None refuses impossible samples of CSV traces and leaves .nc/.xml unchecked;
+        given, it applies to every format.
+
+    Returns
+    -------
+    Recording
+    """
+    if Path(path).suffix.lower() != ".csv":
+        return read_recording(path, bad_samples=bad_samples)
+    return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si,
+                          bad_samples=bad_samples)
 
 
 def write_recording(recording, path: str | Path, **kw: Any) -> Path:
