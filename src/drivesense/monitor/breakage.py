@@ -75,7 +75,8 @@ def _sosfilt(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:  # p
 _BINS_PER_TOOTH = 8
 # scalar state slots
 (_THETA, _NEXT_REV, _REVS, _MEAN, _M2, _NSTAT, _THR, _PERSIST, _LATCH, _CUTTING, _HEAD, _COUNT,
- _DROP, _GATEOFF, _LHEAD, _DRIFT, _DEARLY) = range(17)
+ _DROP, _GATEOFF, _LHEAD, _DRIFT, _DEARLY, _THOFF) = range(18)
+_N_SLOTS = 18
 
 
 @njit(cache=True, nogil=True)
@@ -86,6 +87,36 @@ def _accumulate(harm, weight, theta):  # pragma: no cover - numba
     for k in range(harm.size):
         harm[k] += weight * p
         p *= z
+
+
+@njit(cache=True, nogil=True)
+def _sector(theta, nb):  # pragma: no cover - numba
+    """Bin of the spindle angle ``theta`` [rad] among ``nb`` equal sectors of a revolution."""
+    return int((theta % _TWO_PI) / _TWO_PI * nb) % nb
+
+
+@njit(cache=True, nogil=True)
+def _rebase(sc, ring_v, ring_r, ring_t, harm, bins):  # pragma: no cover - numba
+    """A cut begins: count the angle from here (the window's angles moved with it, its sums taken afresh).
+
+    Everything the cut learns then depends on the signal since about a revolution before the cut, not on
+    how long the stream has run: a monitor that takes the machine over and replays the signal from
+    before the cut reaches the same state, and the same events (the running sums' rounding and the
+    revolution boundaries no longer carry the stream's whole history).  ``_THOFF`` keeps the angle at
+    which the count restarted, so the per-tooth sectors stay on the spindle's own angle.
+    """
+    cap = ring_v.size
+    theta0 = sc[_THETA]
+    sc[_THOFF] += theta0
+    sc[_THETA] = 0.0
+    harm[:] = 0.0
+    bins[:] = 0.0
+    nb = bins.size
+    for j in range(int(sc[_COUNT])):
+        idx = int(sc[_HEAD] - sc[_COUNT] + j) % cap
+        ring_t[idx] -= theta0
+        _accumulate(harm, ring_v[idx] / math.pi, ring_t[idx])
+        bins[_sector(ring_t[idx] + sc[_THOFF], nb)] += ring_r[idx]
 
 
 @njit(cache=True, nogil=True)
@@ -109,7 +140,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             tv = ring_v[tail]
             tt = ring_t[tail]
             _accumulate(harm, -tv / math.pi, tt)
-            bins[int((tt % _TWO_PI) / _TWO_PI * nb) % nb] -= ring_r[tail]
+            bins[_sector(tt + sc[_THOFF], nb)] -= ring_r[tail]
             sc[_COUNT] -= 1
         head = int(sc[_HEAD]) % cap
         ring_v[head] = v
@@ -118,7 +149,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
         sc[_HEAD] = (sc[_HEAD] + 1) % cap
         sc[_COUNT] += 1
         _accumulate(harm, v / math.pi, th)
-        bins[int((th % _TWO_PI) / _TWO_PI * nb) % nb] += abs(raw[i]) * dth
+        bins[_sector(th + sc[_THOFF], nb)] += abs(raw[i]) * dth
         # drop what is older than one revolution
         while sc[_COUNT] > 0:
             tail = int(sc[_HEAD] - sc[_COUNT]) % cap
@@ -126,7 +157,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             if th - tt < _TWO_PI:
                 break
             _accumulate(harm, -ring_v[tail] / math.pi, tt)
-            bins[int((tt % _TWO_PI) / _TWO_PI * nb) % nb] -= ring_r[tail]
+            bins[_sector(tt + sc[_THOFF], nb)] -= ring_r[tail]
             sc[_COUNT] -= 1
         # the window covers exactly one revolution: the oldest sample counts for the part of its angle
         # step inside it (else the window's edge leaks the pattern into every harmonic)
@@ -194,7 +225,8 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             continue
         if sc[_CUTTING] == 0.0:
             sc[_CUTTING] = 1.0
-            sc[_NEXT_REV] = th + _TWO_PI
+            _rebase(sc, ring_v, ring_r, ring_t, harm, bins)
+            sc[_NEXT_REV] = _TWO_PI
             sc[_REVS] = -1.0                     # the window still holds air: learn from the next revolution
             continue
         if th >= sc[_NEXT_REV]:
@@ -429,7 +461,7 @@ class BreakageDetector(Detector):
         cap = int(math.ceil(fs * 60.0 / self.min_rpm)) + 2
         nk = 2 * self.teeth if self.teeth > 1 else 2
         nb = _BINS_PER_TOOTH * self.teeth
-        return {"sc": np.zeros(17), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
+        return {"sc": np.zeros(_N_SLOTS), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
                 "ring_t": np.zeros(cap), "harm": np.zeros(nk, dtype=complex), "heff": np.zeros(nk, dtype=complex),
                 "bins": np.zeros(nb), "ema_h": np.zeros(nk, dtype=complex), "ema_b": np.zeros(nb),
                 "snap_h": np.zeros((6, nk), dtype=complex), "snap_b": np.zeros((6, nb)),
@@ -473,6 +505,8 @@ class BreakageDetector(Detector):
                               state["snap_b"], stat, thr, ev_index, ev_data)
         state["armed_ever"] = state["armed_ever"] or bool(np.any(np.isfinite(thr)))
         state["cut_seen"] = state["cut_seen"] or bool(np.any(np.isfinite(stat))) or state["sc"][_CUTTING] > 0
+        if state["sc"][_CUTTING] == 0.0:
+            state["rest_end"] = start + n          # out of a cut here: the state holds one revolution and filters
         events = []
         for e in range(n_ev):
             loss, d, t, tooth, scale = ev_data[e]
@@ -500,6 +534,20 @@ class BreakageDetector(Detector):
             state["hp_sos"] = scipy.signal.butter(2, corner, btype="high", fs=state["fs"], output="sos")
             state["hp_zi"] = scipy.signal.sosfilt_zi(state["hp_sos"]) * force[0]
         return _sosfilt(state["hp_sos"], np.ascontiguousarray(force, dtype=float), state["hp_zi"])
+
+    def replay_from(self, state: dict) -> int | None:
+        """In a cut: one revolution window and a second (the filters) before the cut began; else None.
+
+        The baseline, its spread and the pattern followed are learnt from the cut's first revolutions on.
+
+        Parameters
+        ----------
+        state : dict
+            The stream's state.
+        """
+        if state["sc"][_CUTTING] == 0.0:
+            return None
+        return max(0, state.get("rest_end", 0) - state["ring_v"].size - int(state["fs"]))
 
     def check_ready(self, state: dict) -> None:
         """Refuse a trace with a cut too short to learn a baseline (a trace of air passes).

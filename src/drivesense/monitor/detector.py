@@ -250,6 +250,25 @@ class Detector(ABC):
             Sample rate [Hz].
         """
 
+    def replay_from(self, state: Any) -> int | None:
+        """Where the signal must be replayed from to rebuild ``state`` exactly, when that is far back.
+
+        A live monitor that hands a machine to another worker replays the last seconds of signal into
+        fresh detectors; a detector whose state reaches further back (a baseline learnt at the start of
+        the present cut) says from where.
+
+        Parameters
+        ----------
+        state : object
+            The stream's state.
+
+        Returns
+        -------
+        int or None
+            Sample index since the stream began; None when a few seconds of signal rebuild the state.
+        """
+        return None
+
     @abstractmethod
     def new_state(self, fs: float) -> Any:
         """A fresh state of constant size for signals at ``fs`` [Hz].
@@ -363,6 +382,14 @@ class DetectorStream:
         """
         self._t0 += float(seconds)
         self._t0_fixed = True
+
+    def replay_from(self) -> float | None:
+        """Time [s] from which replaying the signal rebuilds this stream's state (see :meth:`Detector.replay_from`).
+
+        None when a few seconds of signal do.
+        """
+        index = self.detector.replay_from(self.state)
+        return None if index is None else self._t0 + index / self.fs
 
     def push(self, chunk: Recording | Mapping[str, Any]) -> Detection:
         """Detect in the next samples.
