@@ -58,6 +58,16 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
     return MonitorConfig([MachineSpec(machine, source, MachineMonitor(machine, [axis]))])
 
 
+def _config_names_events(path: Path) -> bool:
+    """Whether a config file's ``[service]`` table names an event log (False when it cannot be read here)."""
+    import tomllib
+
+    try:
+        return "events" in tomllib.loads(path.read_text()).get("service", {})
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, duration: Optional[float]) -> None:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -108,7 +118,13 @@ def register(app: typer.Typer) -> None:
         http: Annotated[Optional[str], typer.Option(help="Serve the dashboard and API on HOST:PORT "
                                                     "(--demo: 127.0.0.1:8765).")] = None,
         events: Annotated[Optional[Path], typer.Option("--events", help="Append events to this JSONL log "
-                                                       "(every event fsync-ed).")] = None,
+                                                       "(every event fsync-ed); with --worker, the folder the "
+                                                       "workers share (a log per machine).")] = None,
+        worker: Annotated[Optional[str], typer.Option("--worker", help="Share the config's machines (mqtt "
+                                                      "sources) with other monitor processes as worker NAME; "
+                                                      "needs --events FOLDER.")] = None,
+        fleet: Annotated[str, typer.Option("--fleet", help="Name of the fleet of workers to join with "
+                                           "--worker.")] = "main",
         archive: Annotated[Optional[str], typer.Option(help="Archive events and their signal segments here "
                                                        "(SQLite file or PostgreSQL DSN).")] = None,
         mqtt: Annotated[Optional[str], typer.Option("--mqtt", help="Publish alarms to this broker "
@@ -146,6 +162,11 @@ def register(app: typer.Typer) -> None:
         if duration is not None and not duration > 0:
             raise ConfigError(f"--duration must be > 0 [s], got {duration!r}")
         check_detector_options(baseline_revs=baseline_revs)
+        if worker is None and fleet != "main":
+            raise ConfigError(f"--fleet {fleet} names the fleet a worker joins: give --worker NAME too")
+        if worker is not None and events is None and not (config is not None and _config_names_events(config)):
+            raise ConfigError("--worker needs --events FOLDER (or [service] events): the folder the workers share, "
+                              "with each machine's event log and claim")
         if config is not None:
             cfg = load_config(config, read=trace_reader(fs, resample, assume_si, bad_samples))
         elif replay is not None:
@@ -163,6 +184,10 @@ def register(app: typer.Typer) -> None:
         for attr, value in (("events", events), ("archive", archive), ("mqtt", mqtt), ("webhook", webhook)):
             if value is not None:
                 setattr(cfg, attr, value)
+        if worker is not None:
+            from drivesense.serve.fleet import FleetWorker
+
+            cfg.fleet = FleetWorker(worker, cfg.events, group=fleet)
         if cfg.http is not None:
             _need("fastapi")
             _need("uvicorn")
@@ -173,6 +198,9 @@ def register(app: typer.Typer) -> None:
         service.listeners.append(_print_event)
         names = ", ".join(f"{m.id} ({m.source.kind})" for m in cfg.machines)
         console.print(f"monitoring {names}", highlight=False, markup=False, soft_wrap=True)
+        if cfg.fleet is not None:
+            console.print(f"worker '{worker}' of fleet '{fleet}': machines shared through {cfg.fleet.url}, event "
+                          f"logs in {cfg.events}", markup=False, soft_wrap=True)
         if service.log.recovered:
             console.print(f"event log {cfg.events}: {service.log.recovered} event(s) from before, kept",
                           markup=False, soft_wrap=True)
@@ -196,7 +224,7 @@ def register(app: typer.Typer) -> None:
         per_machine = {}
         for mid in service.machines:
             st = service.machine_status(mid)
-            n_ev = sum(1 for r in service.log.recent if r["machine"] == mid)
+            n_ev = sum(1 for r in service.log.recent if r["machine"] == mid)     # (a fleet worker: its own)
             per_machine[mid] = {k: st[k] for k in ("samples", "chunks", "rejected", "gaps", "busy_s", "last_error")}
             per_machine[mid]["events"] = n_ev
             table.add_row(escape(mid), str(st["samples"]), str(st["chunks"]), str(st["rejected"]), str(st["gaps"]),

@@ -141,6 +141,8 @@ class MonitorConfig:
         Write token.
     alarm_prefix : str
         Topic prefix of the alarms.
+    fleet : FleetWorker or None
+        Share the machines with other workers (``--worker``; see :mod:`drivesense.serve.fleet`).
     """
 
     machines: list
@@ -151,11 +153,13 @@ class MonitorConfig:
     webhook: str | None = None
     token: str | None = field(default=None, repr=False)
     alarm_prefix: str = ""
+    fleet: Any = None
 
     def service(self) -> MonitorService:
         """The :class:`MonitorService` of this configuration."""
         return MonitorService(self.machines, events_path=self.events, archive=self.archive, alarm_url=self.mqtt,
-                              alarm_prefix=self.alarm_prefix, webhook=self.webhook, token=self.token)
+                              alarm_prefix=self.alarm_prefix, webhook=self.webhook, token=self.token,
+                              fleet=self.fleet)
 
 
 def parse_http(text: str, what: str = "--http") -> tuple[str, int]:

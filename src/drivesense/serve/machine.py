@@ -367,7 +367,7 @@ class MachineMonitor:
         for c in [*self._kept, *(f"force_{a.axis}" for a in self.axes)]:
             self._rings[c] = Ring(cap)
 
-    def process(self, chunk: Chunk) -> list[dict]:
+    def process(self, chunk: Chunk, *, emit: bool = True) -> list[dict]:
         """Estimate and detect on one chunk; the event records it raised, in time order.
 
         A chunk that fails :meth:`check` is counted (``rejected``) and nothing else happens.
@@ -376,6 +376,9 @@ class MachineMonitor:
         ----------
         chunk : Chunk
             The next chunk of this machine.
+        emit : bool
+            False: only bring the state up to date (re-priming on signal another worker already handled);
+            its events are neither returned nor kept for a segment.
         """
         try:
             arrays = self.check(chunk)
@@ -424,13 +427,22 @@ class MachineMonitor:
         self.last_arrival = chunk.arrival
         now = time.time()
         records = [event_record(self.machine, e, arrival=chunk.arrival, detected=now)
-                   for e in sorted(events, key=lambda e: e.time_s)]
+                   for e in sorted(events, key=lambda e: e.time_s)] if emit else []
         for r in records:
             self._pending.append((r, self._ring_index(r["time_s"])))
         self._collect_segments()
         self.busy_s += time.perf_counter() - began
         self.lag_s = max(0.0, time.time() - chunk.arrival)
         return records
+
+    def replay_from(self) -> float | None:
+        """Earliest time [s] from which replaying the signal rebuilds every detector's state (None: a few seconds do).
+
+        A fleet worker keeps the signal since then for the next worker (see :mod:`~drivesense.serve.fleet`).
+        """
+        times = [t for _, _, det_streams, _ in self._streams for s in det_streams
+                 if (t := s.replay_from()) is not None]
+        return min(times) if times else None
 
     def _note_stats(self, stream, axis: str, out) -> None:
         stat = out.statistic[-1] if np.size(out.statistic) else float("nan")

@@ -7,6 +7,13 @@ little as it can -- it stamps each message's arrival, routes it by topic and wak
 per batch -- because every moment it holds the GIL delays the loop, and so the alarms.  Decoding happens
 in the loop.  Each machine holds at most ``max_pending`` undelivered messages; past that the network
 thread waits (backpressure reaches the broker, never memory).
+
+A machine shared by a fleet of workers (:mod:`~drivesense.serve.fleet`) has a session of its own instead
+(``hold_s`` given): MQTT 5, client id per machine, so the broker lets one worker at a time hold it and
+keeps the stream for the next holder.  Its chunks are acknowledged by hand, only once they are processed,
+their events logged and the claim's mark written, and only ``hold_s`` of signal after that: a worker that
+dies leaves the last seconds unacknowledged, and the broker hands them to the next holder, which re-primes
+its estimators on them.
 """
 
 from __future__ import annotations
@@ -23,7 +30,14 @@ from drivesense.errors import ConfigError
 from drivesense.serve.sources import Put, Source
 from drivesense.serve.wire import WireError, decode_chunk
 
-__all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url"]
+__all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url", "RECEIVE_MAXIMUM", "SESSION_EXPIRY_S"]
+
+#: Unacknowledged messages the broker may send a hand-acknowledging link (MQTT 5 receive maximum).
+RECEIVE_MAXIMUM = 2000
+#: How long the broker keeps a hand-acknowledging link's session after it is gone [s] (one day).
+SESSION_EXPIRY_S = 86400
+#: Longest signal a hand-acknowledging source keeps unacknowledged for a detector's long memory [s].
+MAX_HOLD_S = 60.0
 
 
 def parse_mqtt_url(url: str) -> tuple[str, int]:
@@ -71,11 +85,16 @@ class BrokerLink:
         Broker port.
     client_id : str
         MQTT client id (its persistent session).
+    manual_ack : bool
+        Acknowledge messages by hand (:meth:`ack`); the link speaks MQTT 5 then, with a receive maximum
+        of :data:`RECEIVE_MAXIMUM` (unacknowledged messages the broker may send) and a session that
+        outlives the connection by :data:`SESSION_EXPIRY_S`.
     """
 
     _links: dict = {}
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, host: str, port: int, client_id: str) -> None:
+    def __init__(self, loop: asyncio.AbstractEventLoop, host: str, port: int, client_id: str, *,
+                 manual_ack: bool = False) -> None:
         import paho.mqtt.client as mqtt
 
         self.loop = loop
@@ -83,17 +102,31 @@ class BrokerLink:
         self.connected = False
         self.closing = False
         self.users = 0
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False)
+        self.manual_ack = manual_ack
+        self.client_id = client_id
+        if manual_ack:
+            from paho.mqtt.packettypes import PacketTypes
+            from paho.mqtt.properties import Properties
+
+            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5,
+                                      manual_ack=True)
+            props = Properties(PacketTypes.CONNECT)
+            props.SessionExpiryInterval = SESSION_EXPIRY_S
+            props.ReceiveMaximum = RECEIVE_MAXIMUM
+            connect = {"clean_start": False, "properties": props}
+        else:
+            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False)
+            connect = {}
         self.client.reconnect_delay_set(0.2, 2.0)
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
-        self.client.connect_async(host, port, keepalive=10)
+        self.client.connect_async(host, port, keepalive=10, **connect)
         self.client.loop_start()
 
     @classmethod
-    def shared(cls, host: str, port: int, client_id: str) -> "BrokerLink":
-        """The running loop's link to ``host:port`` (created on first use).
+    def shared(cls, host: str, port: int, client_id: str, *, manual_ack: bool = False) -> "BrokerLink":
+        """The running loop's link to ``host:port`` as ``client_id`` (created on first use).
 
         Parameters
         ----------
@@ -102,13 +135,15 @@ class BrokerLink:
         port : int
             Broker port.
         client_id : str
-            Client id of a new link.
+            Client id of the link.
+        manual_ack : bool
+            A new link acknowledges by hand (see the class).
         """
         loop = asyncio.get_running_loop()
-        key = (id(loop), host, port)
+        key = (id(loop), host, port, client_id)
         link = cls._links.get(key)
         if link is None or link.closing:
-            link = cls._links[key] = cls(loop, host, port, client_id)
+            link = cls._links[key] = cls(loop, host, port, client_id, manual_ack=manual_ack)
         return link
 
     def _on_connect(self, client, userdata, flags, reason, props=None) -> None:
@@ -128,9 +163,32 @@ class BrokerLink:
         while not route.slots.acquire(timeout=0.5):
             if self.closing:
                 return
-        route.inbox.append((msg.topic, msg.payload, arrival))
+        route.inbox.append((msg.topic, msg.payload, arrival, msg.mid if self.manual_ack else None))
         if len(route.inbox) == 1:                 # wake the loop once per batch, not per message
             self.loop.call_soon_threadsafe(route.ready.set)
+
+    def _barrier(self, timeout: float = 2.0) -> None:
+        """Wait until the broker has taken every acknowledgement sent so far (a hand-acknowledging link).
+
+        Mosquitto can drop the acknowledgements that arrive together with a DISCONNECT (measured: one
+        hand-over in three got chunks again that had been acknowledged).  A QoS 1 message on a topic nobody
+        reads comes back acknowledged only after the broker has handled what was sent before it.
+        """
+        try:
+            self.client.publish(f"drivesense/barrier/{self.client_id}", b"", qos=1).wait_for_publish(timeout)
+        except (RuntimeError, ValueError):        # the connection went meanwhile: the broker keeps what it has
+            pass
+
+    def ack(self, mid: int) -> None:
+        """Acknowledge a message (links with ``manual_ack``; nothing once the link is closing).
+
+        Parameters
+        ----------
+        mid : int
+            The message's packet id, as :meth:`_on_message` stored it.
+        """
+        if not self.closing:
+            self.client.ack(mid, 1)
 
     def add(self, topic: str, max_pending: int) -> _Route:
         """Subscribe a machine's topic; its route.
@@ -165,6 +223,8 @@ class BrokerLink:
                 route.slots.release()             # a network thread waiting on this route goes on
         if self.users <= 0:
             self.closing = True
+            if self.manual_ack and self.connected:
+                self._barrier()
             self.client.disconnect()
             self.client.loop_stop()
 
@@ -185,12 +245,16 @@ class MQTTSource(Source):
         the broker, so a restarted service finds its session again).
     max_pending : int
         Messages received and not yet taken by the service before the network thread waits.
+    hold_s : float, optional
+        Acknowledge by hand and keep the last ``hold_s`` [s] of processed signal unacknowledged (a fleet
+        worker's machine, see the module).  The service reports with :meth:`processed` and :meth:`settle`.
+        None (default): paho acknowledges each message as it arrives.
     """
 
     kind = "mqtt"
 
     def __init__(self, machine: str, url: str, topic: str | None = None, *, client_id: str | None = None,
-                 max_pending: int = 64) -> None:
+                 max_pending: int = 64, hold_s: float | None = None) -> None:
         super().__init__(machine)
         self.host, self.port = parse_mqtt_url(url)
         self.url = url
@@ -198,8 +262,15 @@ class MQTTSource(Source):
         digest = hashlib.sha1(f"{self.host}:{self.port}".encode()).hexdigest()[:10]
         self.client_id = client_id or f"drivesense-{digest}"
         self.max_pending = int(max_pending)
+        self.hold_s = None if hold_s is None else float(hold_s)
         self.messages = 0
+        self.redelivered = 0
         self._link: BrokerLink | None = None
+        self._unacked: deque = deque()         # (link, mid, seq, t_end) of each message handed on, in order
+        self._held: set = set()                # (link, mid) of those
+        self._processed = 0                    # how many of those the service has finished with
+        self._newest_done: float | None = None  # last sample time of the newest processed chunk [s]
+        self._last_seq: int | None = None      # seq of the newest chunk handed on
 
     @property
     def connected(self) -> bool:
@@ -221,7 +292,8 @@ class MQTTSource(Source):
         stop : asyncio.Event
             Set when the service shuts down.
         """
-        self._link = link = BrokerLink.shared(self.host, self.port, self.client_id)
+        self._link = link = BrokerLink.shared(self.host, self.port, self.client_id,
+                                              manual_ack=self.hold_s is not None)
         route = link.add(self.topic, self.max_pending)
         waiter = asyncio.ensure_future(stop.wait())
         waiter.add_done_callback(lambda _: route.ready.set())     # stopping wakes the wait below
@@ -231,7 +303,7 @@ class MQTTSource(Source):
                     route.ready.clear()
                     await route.ready.wait()              # one future per wake-up, nothing else
                     continue
-                topic, payload, arrival = route.inbox.popleft()
+                topic, payload, arrival, mid = route.inbox.popleft()
                 route.slots.release()
                 self.messages += 1
                 try:
@@ -241,7 +313,65 @@ class MQTTSource(Source):
                                          f"'{self.machine}'")
                 except WireError as exc:
                     item = exc
+                if mid is not None and not self._hold(link, mid, item):
+                    continue
                 await put(item)
         finally:
             waiter.cancel()
             link.remove(self.topic)
+
+    def _hold(self, link: BrokerLink, mid: int, item: Any) -> bool:
+        """Keep a hand-acknowledged message for :meth:`settle`; False for a chunk handed on before (dropped)."""
+        if isinstance(item, Exception):
+            entry = (link, mid, None, None)
+        elif self._last_seq is not None and item.seq <= self._last_seq:
+            self.redelivered += 1                 # the broker sent it again after a reconnection
+            if (link, mid) not in self._held:     # (still held: acknowledged in its turn, not twice)
+                link.ack(mid)
+            return False
+        else:
+            self._last_seq = item.seq
+            entry = (link, mid, item.seq, item.t0 + (item.n - 1) / item.fs)
+        self._unacked.append(entry)
+        self._held.add((link, mid))
+        return True
+
+    def processed(self) -> None:
+        """The service is done with the oldest message handed on and not reported yet (hand-acknowledged only)."""
+        if self.hold_s is not None and self._processed < len(self._unacked):
+            t_end = self._unacked[self._processed][3]
+            if t_end is not None:
+                self._newest_done = t_end
+            self._processed += 1
+
+    def settle(self, marked_seq: int | None, keep_from: float | None = None) -> int:
+        """Acknowledge the processed messages the broker need not keep; how many were acknowledged.
+
+        A chunk is acknowledged once its seq is at most ``marked_seq`` (the claim's mark: everything up to it
+        is processed and its events logged) and its last sample lies ``hold_s`` or more before the newest
+        processed one, and before ``keep_from`` -- but never more than :data:`MAX_HOLD_S` or half the
+        receive maximum of messages are kept.  Messages that could not be read go with their neighbours.
+
+        Parameters
+        ----------
+        marked_seq : int or None
+            The highest chunk seq the machine's claim has marked as done (None: nothing yet).
+        keep_from : float, optional
+            Keep the signal from this time on [s, the machine's clock] (a detector's long memory).
+        """
+        if self.hold_s is None or marked_seq is None or self._newest_done is None:
+            return 0
+        cutoff = self._newest_done - self.hold_s
+        if keep_from is not None:
+            cutoff = min(cutoff, max(keep_from, self._newest_done - MAX_HOLD_S))
+        done = 0
+        while self._processed:
+            link, mid, seq, t_end = self._unacked[0]
+            if seq is not None and (seq > marked_seq or t_end > cutoff) and len(self._unacked) <= RECEIVE_MAXIMUM // 2:
+                break
+            link.ack(mid)
+            self._unacked.popleft()
+            self._held.discard((link, mid))
+            self._processed -= 1
+            done += 1
+        return done

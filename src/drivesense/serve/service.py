@@ -62,6 +62,11 @@ class MachineSpec:
         Its chunk queue while the service runs.
     tasks : list
         Its source and worker tasks while the service runs.
+    claim : object or None
+        A fleet worker's hold on the machine (:class:`~drivesense.serve.fleet.MachineClaim`): its event log,
+        its mark and the chunks to re-prime on.  None outside a fleet.
+    stop : asyncio.Event or None
+        Set to stop this machine alone (a fleet worker handing it on).
     """
 
     id: str
@@ -72,6 +77,8 @@ class MachineSpec:
     source_error: str | None = None
     queue: Any = None
     tasks: list = field(default_factory=list)
+    claim: Any = None
+    stop: Any = None
 
 
 class Subscriber:
@@ -137,11 +144,15 @@ class MonitorService:
         Secret that acknowledging alarms and changing limits need (no token: read-only).
     queue_chunks : int
         Chunks queued per machine.
+    fleet : FleetWorker, optional
+        Share the machines with other workers (:mod:`~drivesense.serve.fleet`): this service watches the ones
+        the fleet gives it, each with its own event log in the fleet's folder; ``events_path`` is unused.
     """
 
     def __init__(self, machines: list[MachineSpec], *, events_path: str | Path | None = None,
                  archive: str | Path | None = None, alarm_url: str | None = None, alarm_prefix: str = "",
-                 webhook: str | None = None, token: str | None = None, queue_chunks: int = QUEUE_CHUNKS) -> None:
+                 webhook: str | None = None, token: str | None = None, queue_chunks: int = QUEUE_CHUNKS,
+                 fleet: Any = None) -> None:
         ids = [m.id for m in machines]
         if not machines:
             raise ConfigError("no machine to monitor: name at least one [[machine]] in the config")
@@ -149,7 +160,12 @@ class MonitorService:
         if dup:
             raise ConfigError(f"machine id(s) {', '.join(dup)} given twice in the config")
         self.machines = {m.id: m for m in machines}
-        self.log = EventLog(events_path)
+        self.fleet = fleet
+        if fleet is not None:
+            fleet.check(self)
+            for m in machines:
+                m.state = "standby"
+        self.log = EventLog(None if fleet is not None else events_path)
         self.archive_location = archive
         self.alarm_url = alarm_url
         self.alarm_prefix = alarm_prefix
@@ -191,33 +207,65 @@ class MonitorService:
                     pass
         self.running = True
         self.sources_started = time.time()
-        for m in self.machines.values():
-            m.queue = asyncio.Queue(maxsize=self.queue_chunks)
-            m.tasks = [asyncio.create_task(self._source_loop(m, stop), name=f"source-{m.id}"),
-                       asyncio.create_task(self._worker(m), name=f"worker-{m.id}")]
+        if self.fleet is None:
+            for m in self.machines.values():
+                self.start_machine(m)
+            coordinator = None
+        else:
+            coordinator = asyncio.create_task(self.fleet.run(self, stop), name="fleet")
         frames = asyncio.create_task(self._frames(stop), name="frames")
         try:
             while not stop.is_set():
                 if until_finished and all(m.source.finished and m.queue.empty() for m in self.machines.values()):
                     break                             # the workers finish what they hold before they end
+                if coordinator is not None and coordinator.done():
+                    coordinator.result()              # the fleet's failure (e.g. a worker name in use) ends the run
                 try:
                     await asyncio.wait_for(stop.wait(), 0.05)
                 except asyncio.TimeoutError:
                     pass
         finally:
             stop.set()
-            for m in self.machines.values():
-                m.tasks[0].cancel()
-            for m in self.machines.values():
-                await m.queue.put(None)               # the worker drains what is queued, then ends
-            await asyncio.gather(*(t for m in self.machines.values() for t in m.tasks), return_exceptions=True)
+            if coordinator is not None:
+                await asyncio.gather(coordinator, return_exceptions=True)     # it hands its machines back
+            await asyncio.gather(*(self.stop_machine(m) for m in self.machines.values()))
             frames.cancel()
             self.running = False
             self._close_outputs()
 
+    def start_machine(self, m: MachineSpec) -> None:
+        """Start a machine's source and worker (a fleet worker calls this when it takes a machine over).
+
+        Parameters
+        ----------
+        m : MachineSpec
+            The machine (not running).
+        """
+        m.stop = asyncio.Event()
+        m.queue = asyncio.Queue(maxsize=self.queue_chunks)
+        m.tasks = [asyncio.create_task(self._source_loop(m, m.stop), name=f"source-{m.id}"),
+                   asyncio.create_task(self._worker(m), name=f"worker-{m.id}")]
+
+    async def stop_machine(self, m: MachineSpec) -> None:
+        """Stop a machine's source; its worker finishes what is queued (nothing when it is not running).
+
+        Parameters
+        ----------
+        m : MachineSpec
+            The machine.
+        """
+        if not m.tasks:
+            return
+        m.stop.set()
+        m.tasks[0].cancel()
+        await m.queue.put(None)                       # the worker drains what is queued, then ends
+        await asyncio.gather(*m.tasks, return_exceptions=True)
+        m.tasks = []
+
     def _open_outputs(self) -> None:
         if self.alarm_url:
-            self.alarms = AlarmPublisher(self.alarm_url, prefix=self.alarm_prefix)
+            self.alarms = AlarmPublisher(self.alarm_url, prefix=self.alarm_prefix, **(
+                {"client_id": f"drivesense-monitor-{self.fleet.group}-{self.fleet.worker}"} if self.fleet else {}))
         if self.webhook_url:
             self.webhook = Webhook(self.webhook_url)
         if self.archive_location is not None:
@@ -226,7 +274,7 @@ class MonitorService:
 
     def _close_outputs(self) -> None:
         if self.archive is not None:
-            for m in self.machines.values():
+            for m in self.machines.values() if self.fleet is None else ():   # (a fleet worker's: at release)
                 for r in m.monitor.pending_segments():
                     self.archive.offer((r, None))
             self.archive.close()
@@ -261,24 +309,33 @@ class MonitorService:
             item = await m.queue.get()
             if item is None:
                 return
-            if isinstance(item, Exception):
-                m.monitor.reject(str(item))
-                continue
-            try:
-                records = m.monitor.process(item)
-            except Exception as exc:  # noqa: BLE001 - a bug on one machine's data never stops the service
-                m.monitor.reject(f"{type(exc).__name__}: {exc}")
-                continue
-            for rec in records:
-                self._emit(rec)
-            segments = m.monitor.take_segments()      # taken whether archived or not: nothing piles up
-            if self.archive is not None:
-                for rec, seg in segments:
-                    self.archive.offer((rec, seg))
+            self._handle(m, item)
+            if m.claim is not None:
+                m.claim.processed(m, item)        # the mark, then the acknowledgements it allows
             if m.queue.empty():
                 await asyncio.sleep(0)                # let the sources and the web server run
 
-    def _emit(self, record: dict) -> None:
+    def _handle(self, m: MachineSpec, item: Any) -> None:
+        """Process one chunk of a machine (or count what could not be read): events out, segments archived."""
+        if isinstance(item, Exception):
+            m.monitor.reject(str(item))
+            return
+        try:                                          # a chunk the machine's last worker handled: state only
+            records = m.monitor.process(item, emit=m.claim is None or not m.claim.priming(item))
+        except Exception as exc:  # noqa: BLE001 - a bug on one machine's data never stops the service
+            m.monitor.reject(f"{type(exc).__name__}: {exc}")
+            return
+        segments = m.monitor.take_segments()          # taken whether archived or not: nothing piles up
+        for rec in records:
+            self._emit(rec, m)
+        if self.archive is not None:
+            for rec, seg in segments:
+                self.archive.offer((rec, seg))
+
+    def _emit(self, record: dict, m: MachineSpec | None = None) -> None:
+        if m is not None and m.claim is not None and m.claim.log.append(record) is None:
+            self.counts["events_repeated"] += 1      # the machine's log (shared by the fleet) has it already
+            return
         logged = self.log.append(record)
         if logged is None:
             self.counts["events_repeated"] += 1
@@ -351,7 +408,7 @@ class MonitorService:
         m = self.machine(machine_id)
         return {**m.monitor.status(), "state": m.state, "source": m.source.describe(), "restarts": m.restarts,
                 "source_error": m.source_error, "queue": m.queue.qsize() if m.queue is not None else 0,
-                "queue_max": self.queue_chunks}
+                "queue_max": self.queue_chunks, **({"fleet": self.fleet.describe(machine_id)} if self.fleet else {})}
 
     def events(self, since: int = 0, limit: int = 1000) -> list[dict]:
         """Logged events after ``since`` (their ``seq``), oldest first.
@@ -387,7 +444,11 @@ class MonitorService:
         by : str
             Who.
         """
-        return self.log.acknowledge(event_id, by)
+        ack = self.log.acknowledge(event_id, by)
+        for m in self.machines.values():          # a fleet worker: into the machine's own log too
+            if m.claim is not None and event_id in m.claim.log.ids:
+                m.claim.log.acknowledge(event_id, by)
+        return ack
 
     def set_force_limit(self, machine_id: str, axis: str, limit_n: float) -> dict:
         """Change an axis's collision/overload limit while running.
