@@ -40,7 +40,8 @@ from drivesense.serve.sources import ReplaySource, SimulatedSource, demo_conditi
 from drivesense.serve.wire import MAGIC, Chunk, decode_chunk, encode_chunk
 from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
-__all__ = ["run_monitor_bench", "setup_demo_axis", "TARGETS", "CUT_S"]
+__all__ = ["run_monitor_bench", "setup_demo_axis", "write_config", "run_child", "wait_until", "subscribe_alarms",
+           "close_quietly", "publisher_traces", "TARGETS", "CUT_S"]
 
 #: The issue's targets.
 TARGETS = {"axes_per_core_min": 50, "alarm_p99_ms_max": 5.0, "memory_mb_per_signal_hour_max": 5.0}
@@ -76,7 +77,18 @@ def _stats_ms(values) -> dict:
                                      for q in (50, 99)}, "max_ms": round(float(v.max()), 3) if v.size else None}
 
 
-def _wait(cond, timeout: float, step: float = 0.1) -> bool:
+def wait_until(cond, timeout: float, step: float = 0.1) -> bool:
+    """Whether ``cond()`` came true within ``timeout``, asked every ``step``.
+
+    Parameters
+    ----------
+    cond : callable
+        Returns true once the wait is over.
+    timeout : float
+        Longest wait [s].
+    step : float
+        Time between two tries [s].
+    """
     deadline = time.time() + timeout
     while time.time() < deadline and not cond():
         time.sleep(step)
@@ -158,8 +170,22 @@ def _realtime_child(n: int, seconds: float, chunk_s: float, out: str, core: int 
                                      "queue_never_full": not full, "keeps_up": share >= 0.99 and not full}))
 
 
-def _child(name: str, args: dict, work: Path, core: int | None = None, timeout: float | None = None):
-    """This module's ``_NAME_child`` in a subprocess: the Popen, or with a ``timeout`` [s] its JSON when it ends."""
+def run_child(name: str, args: dict, work: Path, core: int | None = None, timeout: float | None = None):
+    """This module's ``_NAME_child`` in a subprocess: the Popen, or with a ``timeout`` [s] its JSON when it ends.
+
+    Parameters
+    ----------
+    name : str
+        The child function's name between ``_`` and ``_child``.
+    args : dict
+        Its keyword arguments (JSON); ``out`` is added.
+    work : Path
+        Folder of its JSON output and log.
+    core : int, optional
+        Pin it to this core.
+    timeout : float, optional
+        Wait this long [s] for its JSON (None: return the Popen).
+    """
     code = f"import json, sys; from drivesense.bench import monitor as m; m._{name}_child(**json.loads(sys.argv[1]))"
     args = {**args, "out": str(work / f"{name}.json"), **({"core": core} if core is not None else {})}
     with open(work / f"{name}.log", "wb") as log:
@@ -194,8 +220,8 @@ def _throughput(work: Path, *, quick: bool, n_axes: int | None = None, realtime_
         if before is not None:
             os.sched_setaffinity(0, before)
     apc = steady["chunk_50ms"]["axes_per_core"]
-    rt = _child("realtime", {"n": realtime_axes or max(1, min(50, int(apc * 0.8))), "seconds": 5.0 if quick else 20.0,
-                             "chunk_s": 0.05}, work, 0, 600.0)
+    rt = run_child("realtime", {"n": realtime_axes or max(1, min(50, int(apc * 0.8))),
+                                "seconds": 5.0 if quick else 20.0, "chunk_s": 0.05}, work, 0, 600.0)
     return {"pinned_to_one_core": before is not None, "steady_state": steady, "axes_per_core": apc,
             "baseline": "the estimator alone on the same chunks (CPU per axis-second)",
             "monitor_over_estimator": steady["chunk_50ms"]["monitor_over_estimator"], "realtime": rt}
@@ -213,12 +239,18 @@ def _mqtt(url: str, name: str, callbacks: dict | None = None, clean_session: boo
         setattr(client, key, fn)
     client.connect_async(*parse_mqtt_url(url), keepalive=10)          # retried until the broker answers
     client.loop_start()
-    _wait(client.is_connected, 10.0, 0.02)
+    wait_until(client.is_connected, 10.0, 0.02)
     return client
 
 
-def _close(x) -> None:
-    """Stop a service, end a subprocess, disconnect an MQTT client (None: nothing)."""
+def close_quietly(x) -> None:
+    """Stop a service, end a subprocess, disconnect an MQTT client (None: nothing).
+
+    Parameters
+    ----------
+    x : object
+        A service, subprocess, paho client or None.
+    """
     if isinstance(x, _Service):
         x.stop()
     elif isinstance(x, subprocess.Popen):
@@ -228,8 +260,14 @@ def _close(x) -> None:
         x.loop_stop()
 
 
-def _subscribe(url: str) -> tuple:
-    """A subscriber on ``+/alarm`` (persistent session), its list of (receive time [s since the epoch], record)."""
+def subscribe_alarms(url: str) -> tuple:
+    """A subscriber on ``+/alarm`` (persistent session), its list of (receive time [s since the epoch], record).
+
+    Parameters
+    ----------
+    url : str
+        ``mqtt://HOST[:PORT]``.
+    """
     got: list = []
     client = _mqtt(url, "alarms", {"on_connect": lambda c, u, f, r, p=None: c.subscribe("+/alarm", qos=1),
                                    "on_message": lambda c, u, m: got.append((time.time(), json.loads(m.payload)))},
@@ -238,12 +276,23 @@ def _subscribe(url: str) -> tuple:
     return client, got, time.time()
 
 
+def publisher_traces(machines: list) -> dict:
+    """The recordings the publisher plays, by machine: one simulated trace, machine i from i * 1.2 s on.
+
+    Parameters
+    ----------
+    machines : list of str
+        Machine ids, in the publisher's order.
+    """
+    base = _trace(_SEED + 1, 6)
+    return {m: Recording.from_arrays({c: np.roll(base[c], -i * 12007) for c in base.channels}, fs=base.fs)
+            for i, m in enumerate(machines)}
+
+
 def _publish_child(url: str, machines: list, seconds: float, out: str, core: int | None = None) -> None:
     """Subprocess: each machine's event cuts published at real time in 50 ms chunks, starts spread evenly."""
     _pin(0, core)
-    base = _trace(_SEED + 1, 6)                               # machine i plays it from i * 1.2 s on
-    traces = {m: Recording.from_arrays({c: np.roll(base[c], -i * 12007) for c in base.channels}, fs=base.fs)
-              for i, m in enumerate(machines)}
+    traces = publisher_traces(machines)
     client, sent = _mqtt(url, "publish", None, False), dict.fromkeys(machines, 0)
 
     async def play(i: int, mid: str, stop: asyncio.Event) -> None:
@@ -261,7 +310,7 @@ def _publish_child(url: str, machines: list, seconds: float, out: str, core: int
         await asyncio.gather(*tasks)
     asyncio.run(main())
     time.sleep(0.5)
-    _close(client)
+    close_quietly(client)
     Path(out).write_text(json.dumps({"sent": sent}))
 
 
@@ -279,8 +328,18 @@ def setup_demo_axis(work: Path) -> None:
         write_recording(rec, work / f"idle{i}.nc")
 
 
-def _config(path: Path, machines: dict, service: dict) -> Path:
-    """A monitor config: ``machines`` id -> source table, each the demo axis X (idle runs next to it)."""
+def write_config(path: Path, machines: dict, service: dict) -> Path:
+    """A monitor config: ``machines`` id -> source table, each the demo axis X (idle runs next to it).
+
+    Parameters
+    ----------
+    path : Path
+        The TOML file to write (the idle runs lie next to it).
+    machines : dict
+        Machine id -> source table.
+    service : dict
+        The ``[service]`` table.
+    """
     value, idle = json.dumps, json.dumps(sorted(p.name for p in path.parent.glob("idle*.nc")))   # JSON is TOML here
     lines = ["[service]", *(f"{k} = {value(v)}" for k, v in service.items()), ""]
     for mid, src in machines.items():
@@ -303,7 +362,7 @@ class _Service:
                                           "--http", f"127.0.0.1:{self.http}", "--duration", "900", "--json",
                                           str(self.summary)], stdout=log, stderr=log)
         _pin(self.proc.pid, core)
-        if not _wait(self.connected, 120.0, 0.2):
+        if not wait_until(self.connected, 120.0, 0.2):
             self.stop()
             raise RuntimeError("the service did not come up")
 
@@ -324,7 +383,7 @@ class _Service:
         """SIGTERM; after ``timeout`` [s] SIGABRT (faulthandler writes the threads to the log), then kill."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-            self.hung = not _wait(lambda: self.proc.poll() is not None, timeout)
+            self.hung = not wait_until(lambda: self.proc.poll() is not None, timeout)
             if self.hung:
                 self.proc.send_signal(signal.SIGABRT)
                 _ended(self.proc, 5.0)
@@ -341,21 +400,22 @@ def _latency(broker: LocalBroker, work: Path, *, quick: bool, core: int | None =
     """20 mqtt machines publishing at real time; alarm receive time - chunk arrival [ms]; then again on one core."""
     tag, seconds = ("latency-any" if core is None else f"latency-core{core}"), (10.0 if quick else 40.0)
     machines = [f"{tag}-{i:02d}" for i in range(n_machines)]      # new ids: no MQTT session of the run before
-    cfg = _config(work / f"{tag}.toml", {m: {"kind": "mqtt", "url": broker.url, "topic": f"{m}/drive"}
+    cfg = write_config(work / f"{tag}.toml", {m: {"kind": "mqtt", "url": broker.url, "topic": f"{m}/drive"}
                                          for m in machines}, {"mqtt": broker.url, "events": f"{tag}-events.jsonl"})
     svc, sub = _Service(cfg, work, tag, core), None
     try:
-        sub, got, _ = _subscribe(broker.url)
-        pub = _child("publish", {"url": broker.url, "machines": machines, "seconds": seconds}, work, 1)
+        sub, got, _ = subscribe_alarms(broker.url)
+        pub = run_child("publish", {"url": broker.url, "machines": machines, "seconds": seconds}, work, 1)
         time.sleep(5.0)                                        # the publisher starts (imports, simulates)
         (ps := psutil.Process(svc.proc.pid)).cpu_percent()    # the service's CPU from here on
         _ended(pub, seconds + 180)
         cpu, t_end, sent = ps.cpu_percent() / 100, time.time(), json.loads((work / "publish.json").read_text())["sent"]
-        _wait(lambda: sum(x["chunks"] + x["rejected"] for x in svc.machines().values()) >= sum(sent.values()), 60, 0.2)
+        wait_until(lambda: sum(x["chunks"] + x["rejected"] for x in svc.machines().values()) >= sum(sent.values()),
+                   60, 0.2)
         drain_s, stats = time.time() - t_end, svc.machines()
     finally:
-        _close(svc)
-        _close(sub)
+        close_quietly(svc)
+        close_quietly(sub)
     logged = _read_log(work / f"{tag}-events.jsonl")
     out = {"machines": n_machines, "publish_s": seconds, "chunk_ms": 50.0, "alarms": len(got),
            "alarm_kinds": {k: sum(r["kind"] == k for _, r in got) for k in sorted({r["kind"] for _, r in got})},
@@ -384,7 +444,7 @@ def _garbage(url: str, machine: str, channels: list) -> list:
     client = _mqtt(url, "garbage")
     for _, payload in msgs:
         client.publish(f"{machine}/drive", payload, qos=1).wait_for_publish(10)
-    _close(client)
+    close_quietly(client)
     return [name for name, _ in msgs]
 
 
@@ -395,24 +455,24 @@ def _faults(broker: LocalBroker, work: Path, *, quick: bool) -> dict:
         write_recording(_trace(_SEED + 2 + i, 6, rotate=i), work / f"{r}.nc")
     replay = {r: {"kind": "replay", "path": f"{r}.nc", "speed": speed, "loop": loops} for r in rp}
     events, archive = work / "faults-events.jsonl", work / "faults.sqlite"
-    cfg = _config(work / "faults.toml", {**{m: {"kind": "mqtt", "url": broker.url} for m in mq}, **replay},
+    cfg = write_config(work / "faults.toml", {**{m: {"kind": "mqtt", "url": broker.url} for m in mq}, **replay},
                   {"mqtt": broker.url, "events": events.name, "archive": archive.name})
-    ref = load_config(_config(work / "ref.toml", {r: dict(s, speed=0.0) for r, s in replay.items()}, {})).service()
+    ref = load_config(write_config(work / "ref.toml", {r: dict(s, speed=0.0) for r, s in replay.items()}, {})).service()
     asyncio.run(ref.run(until_finished=True))
     reference = {r["id"] for r in ref.log.recent}
     svc, svc2, sub, pub, out = _Service(cfg, work, "faults-1"), None, None, None, {}
     try:
-        sub, got, since = _subscribe(broker.url)
-        pub = _child("publish", {"url": broker.url, "machines": mq, "seconds": 900}, work, core=1)
-        _wait(lambda: min(svc.machines()[q]["chunks"] for q in mq) > 40, 60.0)    # 2 s of data from each
+        sub, got, since = subscribe_alarms(broker.url)
+        pub = run_child("publish", {"url": broker.url, "machines": mq, "seconds": 900}, work, core=1)
+        wait_until(lambda: min(svc.machines()[q]["chunks"] for q in mq) > 40, 60.0)    # 2 s of data from each
         t_down = time.time()                                   # (a) the broker goes away for 1 s
         broker.stop()
         time.sleep(1.0)
         broker.start()
         t_up = time.time()
-        after = _wait(lambda: any(r["detected"] > t_up and r["machine"] in mq for _, r in got), 20.0)
-        reconnected, alive = _wait(svc.connected, 10.0), svc.proc.poll() is None
-        _wait(lambda: sum(r["machine"] in rp for r in _read_log(events)) >= 3, 30.0)
+        after = wait_until(lambda: any(r["detected"] > t_up and r["machine"] in mq for _, r in got), 20.0)
+        reconnected, alive = wait_until(svc.connected, 10.0), svc.proc.poll() is None
+        wait_until(lambda: sum(r["machine"] in rp for r in _read_log(events)) >= 3, 30.0)
         time.sleep(0.5)
         _ended(svc.proc)                                       # (c) kill -9 ...
         t_kill, before_kill, got1 = time.time(), _read_log(events), list(got)
@@ -424,17 +484,17 @@ def _faults(broker: LocalBroker, work: Path, *, quick: bool) -> dict:
             "logged_events_without_alarm": sum(r["id"] not in seen for r in before_kill if since < r["detected"]
                                                < t_kill - 1)}}
         svc2 = _Service(cfg, work, "faults-2")                 # ... and a restart on the same log and archive
-        _wait(lambda: svc2.machines()["q0"]["chunks"] > 5, 20.0)
+        wait_until(lambda: svc2.machines()["q0"]["chunks"] > 5, 20.0)
         t_garbage, sent = time.time(), _garbage(broker.url, "q0", list(_trace(_SEED, 1).channels))   # (b) garbage
-        _wait(lambda: all(m["state"] == "finished" and m["queue"] == 0 for k, m in svc2.machines().items()
+        wait_until(lambda: all(m["state"] == "finished" and m["queue"] == 0 for k, m in svc2.machines().items()
                           if k in rp), loops * 6 * CUT_S / speed * 3 + 30, step=0.5)
-        _wait(lambda: any(r["detected"] > t_garbage and r["machine"] == "q0" for _, r in got), 15.0)
+        wait_until(lambda: any(r["detected"] > t_garbage and r["machine"] == "q0" for _, r in got), 15.0)
         alive2, stats, t_stop = svc2.proc.poll() is None, svc2.machines(), time.time()
         summary = svc2.stop()                                  # (d) SIGTERM while q0..q5 publish
         stop_s = time.time() - t_stop
     finally:
         for x in (svc, svc2, pub, sub):
-            _close(x)
+            close_quietly(x)
     q0_after = [r for r in _read_log(events) if r["machine"] == "q0" and r["detected"] > t_garbage]
     out["garbage"] = {"survived": bool(alive2 and stats["q0"]["rejected"] == len(sent) and q0_after
                                        and stats["q1"]["rejected"] == 0), "details": {
@@ -485,7 +545,7 @@ def _memory_child(loops: int, speed: float, out: str, events: str, archive: str 
 
 def _memory(work: Path, *, quick: bool, archive: bool) -> dict:
     loops, tag = (10 if quick else 60), ("archive" if archive else "log")
-    res = _child("memory", {"loops": loops, "speed": 50.0, "events": str(work / f"mem-{tag}.jsonl"), "archive":
+    res = run_child("memory", {"loops": loops, "speed": 50.0, "events": str(work / f"mem-{tag}.jsonl"), "archive":
                             str(work / f"mem-{tag}.sqlite") if archive else None}, work, None, loops * 6.0 + 120)
     rows = np.asarray(res["rows"], dtype=float)
     wall_h, signal_h, rss, h = rows[:, 0] / 3600, rows[:, 1] / res["fs"] / 3600, rows[:, 2] / 2**20, len(rows) // 2
