@@ -2,7 +2,8 @@
 
 Quick mode (4 recordings of 15 s) is too short for the speed targets (the cluster's fixed costs dominate);
 their figures must be there and be numbers.  Identity with the serial run, resume after ``kill -9`` and
-the failing input must hold at any size.
+the failing input must hold at any size; so must the monitor failover (quick: 3 worker processes on a real
+mosquitto, 6 machines for 24 s; one worker stopped with SIGTERM, then another killed with SIGKILL).
 """
 
 from __future__ import annotations
@@ -28,5 +29,13 @@ def test_fleet_bench_quick():
     assert resume["survived"], resume
     assert resume["rerun_ran"] + resume["rerun_skipped"] == 4 and resume["results_rewritten_with_row_before"] == 0
     assert out["failure"]["survived"] and "broken.nc" in out["failure"]["error"]
+    fo = out["failover"]
+    assert fo["machines"] == 6 and fo["workers"] == 3 and fo["machines_moved"] >= 1, fo
+    assert fo["events_reference"] > 0 and fo["all_marked_to_the_end"], fo
+    assert (fo["events_lost"], fo["events_extra"], fo["events_doubled"], fo["alarms_doubled"]) == (0, 0, 0, 0), fo
+    for phase in ("leave", "kill"):                       # SIGTERM (hand-over), then SIGKILL
+        assert fo[phase]["machines_moved"] >= 1 and fo[phase]["exit"] == (0 if phase == "leave" else -9), fo[phase]
+        assert all(r["resumed_s"] is not None and r["resumed_s"] <= 5.0 for r in fo[phase]["resume"]), fo[phase]
+    assert fo["survived"]
     met = {t["target"].split(" ")[0]: t["met"] for t in out["targets"]}
-    assert met["results"] and met["resume"] and met["a"]
+    assert met["results"] and met["resume"] and met["a"] and met["monitor"]

@@ -8,7 +8,7 @@ machines is killed with SIGKILL.  Then:
 * *lost / doubled*: the events in the machines' logs (the union over the fleet) against a reference --
   the same chunks of each machine processed in this process from start to end, without interruption --
   and every id counted once; the alarms a subscriber received are checked for repeats too;
-* *resume*: for every machine the killed worker held, the time from the kill until its new worker has
+* *resume*: for every machine the stopped or killed worker held, the time from the signal until its new worker has
   re-primed on the chunks the broker kept and processed the first chunk the killed one had not (the
   ``resumed`` line of the machine's log), and the signal's lag behind real time at that moment.
 """
@@ -29,7 +29,7 @@ from drivesense.bench.monitor import (close_quietly, publisher_traces, run_child
                                       subscribe_alarms, wait_until, write_config)
 from drivesense.serve.broker import LocalBroker, free_port
 from drivesense.serve.config import load_config
-from drivesense.serve.fleet import HOLD_S
+from drivesense.serve.fleet import HOLD_S, owner_of
 from drivesense.serve.machine import MachineMonitor
 from drivesense.serve.sources import ReplaySource
 
@@ -45,14 +45,15 @@ def _lines(path: Path) -> list[dict]:
     return [json.loads(x) for x in text[:text.rfind(b"\n") + 1].splitlines()]
 
 
-def _held(port: int) -> set:
-    """Machines a worker holds, from its API (empty when it does not answer)."""
+def _held(port: int) -> tuple[set, set]:
+    """Machines a worker holds and runs, and the workers it sees, from its API (empty when it does not answer)."""
     try:
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/machines", timeout=5) as r:
-            return {m["machine"] for m in json.loads(r.read()) if m.get("fleet", {}).get("held")
-                    and m["state"] == "running"}
+            machines = json.loads(r.read())
     except (OSError, ValueError):
-        return set()
+        return set(), set()
+    return ({m["machine"] for m in machines if m["fleet"]["held"] and m["state"] == "running"},
+            {w for m in machines for w in m["fleet"]["workers"]})
 
 
 def _reference(config: Path, machines: list, sent: dict) -> dict:
@@ -75,6 +76,16 @@ def _reference(config: Path, machines: list, sent: dict) -> dict:
     return out
 
 
+def _resume(lines: list, machine: str, since: float) -> dict:
+    """A moved machine's takeover, from its log: new worker, claimed and resumed [s after ``since``], priming."""
+    claim = next((x for x in lines if "claim" in x and x["at"] > since), None)
+    resumed = next((x for x in lines if "resumed" in x and x["at"] > since), None)
+    return {"machine": machine, "new_worker": claim and claim["worker"],
+            "claimed_s": claim and claim["at"] - since, "resumed_s": resumed and resumed["at"] - since,
+            "primed_chunks": resumed and resumed["primed"], "lag_at_resume_s": resumed and resumed["lag_s"],
+            "prime_through": claim and claim["prime_through"]}
+
+
 def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
     """Run the failover measurement in ``work``; its figures (strict JSON values).
 
@@ -83,12 +94,12 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
     work : Path
         An empty folder (AXIS.toml and the idle runs are made there when missing).
     quick : bool
-        6 machines for 24 s (the tests) instead of 30 for 40 s.
+        6 machines for 24 s (the tests) instead of 30 for 45 s.
     progress : callable, optional
         Called with a label after each step.
     """
     step = progress or (lambda label: None)
-    n_machines, seconds = (6, 24.0) if quick else (30, 40.0)
+    n_machines, seconds = (6, 24.0) if quick else (30, 45.0)
     if not (work / "AXIS.toml").exists():
         setup_demo_axis(work)
     machines, workers = [f"f{i:02d}" for i in range(n_machines)], ["w1", "w2", "w3"]
@@ -107,25 +118,39 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
                                             stdout=log, stderr=log)
         held: dict = {}
 
-        def settled() -> bool:
-            for w, p in procs.items():
-                if p.poll() is not None:
-                    raise RuntimeError(f"worker {w} exited with {p.returncode}: "
+        def settled(alive: list) -> bool:          # every worker sees all, each machine held by its owner alone
+            seen = []
+            for w in alive:
+                if procs[w].poll() is not None:
+                    raise RuntimeError(f"worker {w} exited with {procs[w].returncode}: "
                                        f"{(work / f'failover-{w}.log').read_text(errors='replace')[-600:]}")
-                held[w] = _held(ports[w])
-            return sorted(m for h in held.values() for m in h) == machines
-        if not wait_until(settled, 180.0, 0.5):
+                held[w], sees = _held(ports[w])
+                seen.append(sees == set(alive))
+            return all(seen) and sorted(m for w in alive for m in held[w]) == machines and all(
+                m in held[owner_of(m, alive)] for m in machines)
+        if not wait_until(lambda: settled(workers), 180.0, 0.5):
             raise RuntimeError(f"the workers did not share the machines out: {held}")
         step("workers up")
+        held_at_start = {w: len(h) for w, h in held.items()}
         sub, got, _ = subscribe_alarms(broker.url)
         pub = run_child("publish", {"url": broker.url, "machines": machines, "seconds": seconds}, work, None)
-        victim = max(workers, key=lambda w: (len(held[w]), w))
-        moved = sorted(held[victim])
-        time.sleep(4.0 + seconds / 2)                              # the publisher starts (~4 s), then half-way
-        procs[victim].kill()
-        t_kill = time.time()
-        procs[victim].wait()
-        step("worker killed")
+        time.sleep(4.0 + seconds / 3)                              # the publisher starts (~4 s), then a third in
+        alive, phases = list(workers), {}
+        for how in ("leave", "kill"):                              # SIGTERM: hands its machines over; then -9
+            victim = max(alive, key=lambda w: (len(held[w]), w))
+            moved = sorted(held[victim])
+            t0 = time.time()
+            if how == "leave":
+                procs[victim].send_signal(signal.SIGTERM)
+            else:
+                procs[victim].kill()
+            procs[victim].wait(60)
+            alive.remove(victim)
+            phases[how] = {"worker": victim, "at": t0, "moved": moved, "exit": procs[victim].returncode}
+            step(f"worker {how}")
+            if how == "leave":
+                wait_until(lambda: settled(alive), 30.0, 0.2)
+                time.sleep(max(0.0, t0 + seconds / 3 - time.time()))
         publisher_exit = pub.wait(seconds + 120)
         sent = json.loads((work / "publish.json").read_text())["sent"]
 
@@ -134,10 +159,9 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
             return all(v and int(v[0]) >= sent[m] - 1 for m, v in marks.items())
         drained = wait_until(caught_up, 120.0, 0.5)
         time.sleep(1.0)                                            # the last alarms reach the subscriber
-        for w in workers:
-            if w != victim:
-                procs[w].send_signal(signal.SIGTERM)
-        exits = {w: procs[w].wait(60) for w in workers if w != victim}
+        for w in alive:
+            procs[w].send_signal(signal.SIGTERM)
+        exits = {w: procs[w].wait(60) for w in alive}
     finally:
         for p in procs.values():
             if p.poll() is None:
@@ -155,28 +179,29 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
     ref_ids = {i for ids in reference.values() for i in ids}
     logged = [r["id"] for lines in logs.values() for r in lines if "id" in r]
     alarm_ids = Counter(r["id"] for _, r in got)
-    resumes = []
-    for m in moved:
-        lines = logs[m]
-        claim = next((x for x in lines if "claim" in x and x["at"] > t_kill), None)
-        resumed = next((x for x in lines if "resumed" in x and x["at"] > t_kill), None)
-        resumes.append({"machine": m, "new_worker": claim and claim["worker"],
-                        "claimed_s": claim and claim["at"] - t_kill, "resumed_s": resumed and resumed["at"] - t_kill,
-                        "primed_chunks": resumed and resumed["primed"], "lag_at_resume_s": resumed and resumed["lag_s"],
-                        "prime_through": claim and claim["prime_through"]})
-    resumed_s = [r["resumed_s"] for r in resumes if r["resumed_s"] is not None]
+    t_leave = phases["leave"]["at"]
+    for phase in phases.values():
+        at = phase.pop("at")
+        phase["at_s"] = at - t_leave
+        phase["resume"] = [_resume(logs[m], m, at) for m in phase.pop("moved")]
+        done = [r["resumed_s"] for r in phase["resume"] if r["resumed_s"] is not None]
+        phase["machines_moved"] = len(phase["resume"])
+        phase["resume_s_max"] = max(done) if done and len(done) == len(phase["resume"]) else None
     lost, extra = ref_ids - set(logged), set(logged) - ref_ids
     out = {"machines": n_machines, "workers": len(workers), "publish_s": seconds, "chunk_ms": 50.0,
-           "killed": victim, "killed_at_s": seconds / 2, "machines_moved": len(moved),
-           "held_before": {w: len(h) for w, h in held.items()}, "chunks_sent": int(sum(sent.values())),
+           "scenario": "a third in: the busiest worker stopped (SIGTERM, hands over); two thirds in: the busiest "
+                       "of the other two killed (SIGKILL)",
+           "held_at_start": held_at_start, "chunks_sent": int(sum(sent.values())),
            "publisher_exit": publisher_exit, "all_marked_to_the_end": drained, "survivor_exits": exits,
            "events_reference": len(ref_ids), "events_logged": len(logged), "events_lost": len(lost),
            "events_extra": len(extra), "events_doubled": len(logged) - len(set(logged)),
            "lost_ids": sorted(lost)[:10], "extra_ids": sorted(extra)[:10],
            "alarms_received": sum(alarm_ids.values()), "alarms_doubled": sum(c - 1 for c in alarm_ids.values()),
-           "resume": resumes, "resume_s_max": max(resumed_s) if len(resumed_s) == len(moved) and moved else None,
-           "hold_s": HOLD_S}
-    out["survived"] = bool(moved and drained and not lost and not extra and out["events_doubled"] == 0
-                           and out["alarms_doubled"] == 0 and out["resume_s_max"] is not None
-                           and out["resume_s_max"] <= RESUME_S_MAX)
+           "leave": phases["leave"], "kill": phases["kill"], "hold_s": HOLD_S}
+    resumes = [phases[k]["resume_s_max"] for k in phases]
+    out["machines_moved"] = phases["kill"]["machines_moved"]
+    out["resume_s_max"] = None if None in resumes else max(resumes)
+    out["survived"] = bool(all(phases[k]["machines_moved"] for k in phases) and drained and not lost and not extra
+                           and out["events_doubled"] == 0 and out["alarms_doubled"] == 0
+                           and out["resume_s_max"] is not None and out["resume_s_max"] <= RESUME_S_MAX)
     return out

@@ -506,6 +506,11 @@ class MonitorService:
                [({}, self.webhook.failed if self.webhook else 0)])
         metric("dashboard_frames_dropped_total", "counter", "Frames a slow dashboard client did not get.",
                [({}, self.counts["frames_dropped"] + sum(s.dropped_frames for s in self.subscribers))])
+        if self.fleet is not None:
+            metric("fleet_machine_held", "gauge", "1 for each machine this worker watches now, 0 for the others.",
+                   [({"machine": m.id, "worker": self.fleet.worker}, float(m.claim is not None)) for m in ms])
+            metric("fleet_workers", "gauge", "Live workers of the fleet this worker sees.",
+                   [({}, len(self.fleet.membership.live()) if self.fleet.membership else 0)])
         metric("uptime_seconds", "gauge", "Seconds since the service started.", [({}, time.time() - self.started)])
         return "\n".join(lines) + "\n"
 
