@@ -169,3 +169,64 @@ def test_monitor_cli_worker_needs_an_events_folder(tmp_path):
     assert res.exit_code == 2 and "--worker needs --events FOLDER" in res.output, res.output
     res = runner.invoke(app, ["monitor", "--demo", "--worker", "w1", "--events", str(tmp_path / "ev")])
     assert res.exit_code == 2 and "has a simulated source; workers share only machines on mqtt" in res.output
+
+
+def test_a_machine_taken_over_mid_stream_raises_the_uninterrupted_runs_events():
+    """The re-priming rule itself, without a broker: a fresh monitor replays from HOLD_S before the last
+    worker's mark (or from where a detector's memory begins, the breakage detector's cut start), quietly up
+    to the mark; from there on its events are the uninterrupted run's, id for id."""
+    from drivesense.serve.demo import demo_machine
+    from drivesense.serve.fleet import HOLD_S
+    from drivesense.serve.machine import MachineMonitor
+    from drivesense.serve.sources import SimulatedSource
+    from drivesense.serve.wire import Chunk
+
+    axes = demo_machine(speed=0.0).monitor.axes
+    sim = SimulatedSource("m1", seed=11, cut_s=4.0, event_share=1.0)     # cuts with breakage, chipping, collision
+    cuts = [sim.simulate_cut(k) for k in range(5)]
+    chans = [c for c in cuts[0].channels if not c.startswith("force_")]
+    signal = {c: np.concatenate([r[c] for r in cuts]) for c in chans}
+    n, fs = 500, cuts[0].fs
+    chunks = [Chunk("m1", k, k * n / fs, fs, {c: v[k * n:(k + 1) * n] for c, v in signal.items()})
+              for k in range(len(signal[chans[0]]) // n)]
+    ref, ref_ids, keep = MachineMonitor("m1", axes), [], []
+    for c in chunks:
+        ref_ids.append([r["id"] for r in ref.process(c)])
+        keep.append(ref.replay_from())
+    assert sum(map(len, ref_ids)) >= 4
+    for mark in range(30, len(chunks) - 20, 23):
+        start = mark - int(HOLD_S * fs / n) + 1
+        if keep[mark] is not None:                       # in a cut: from before its start
+            start = min(start, int(keep[mark] * fs / n))
+        fresh = MachineMonitor("m1", axes)
+        got = [r["id"] for k in range(max(0, start), len(chunks)) for r in fresh.process(chunks[k], emit=k > mark)]
+        assert got == [i for k in range(mark + 1, len(chunks)) for i in ref_ids[k]], mark
+
+
+def test_the_breakage_detector_replayed_from_before_a_cut_gives_the_same_statistic():
+    """Exactly 100 samples per revolution (6000 min^-1 at 10 kHz): a spindle angle counted from the start of
+    the stream put the revolution boundaries on a knife's edge of rounding, so a stream started later (a worker
+    that took the machine over) drifted from the uninterrupted one.  Counted from each cut's start, a stream
+    started anywhere before the cut gives the same statistic, sample for sample."""
+    from drivesense.monitor.breakage import BreakageDetector
+
+    fs, w = 1e4, 2 * np.pi * 100.0
+    t = np.arange(int(22 * fs)) / fs
+    cutting = (t % 11.0) > 3.0                                   # 3 s air, 8 s cut; twice
+    rng = np.random.default_rng(3)
+    force = cutting * (40 + 25 * np.sin(2 * w * t) + 6 * np.sin(w * t + 0.4) + rng.normal(0, 0.5, t.size))
+    arrays = {"force_x": force, "spindle_speed": np.full(t.size, w), "feed_speed": np.full(t.size, 0.01)}
+    det = BreakageDetector("x", teeth=2, spindle_rpm=6000.0)
+
+    def run(start: int) -> np.ndarray:
+        stream, out = det.stream(fs, t0=start / fs), []
+        for k in range(start, t.size, 500):
+            out.append(stream.push_arrays({c: v[k:k + 500] for c, v in arrays.items()}).statistic)
+        return np.concatenate(out)
+    whole = run(0)
+    second_cut = slice(int(14.5 * fs), t.size)                 # the second cut, after its first revolutions
+    for start in (int(12.0 * fs), int(13.2 * fs)):              # started in the air before it
+        late = run(start)
+        a, b = whole[second_cut], late[second_cut.start - start:]
+        assert np.isfinite(a).sum() > 1000
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, equal_nan=True)

@@ -1,16 +1,17 @@
-"""The failover part of ``drivesense bench fleet``: monitor workers sharing machines, one of them killed.
+"""The failover part of ``drivesense bench fleet``: monitor workers sharing machines, one leaving, one killed.
 
 Three ``drivesense monitor CONFIG --worker wK --events FOLDER`` processes share 30 machines (each the demo
 axis X on an ``mqtt`` source) on a local mosquitto; a publisher plays every machine's simulated cuts (with
-breakages, chatter and overloads) at real time in 50 ms chunks.  Half-way, the worker that holds the most
-machines is killed with SIGKILL.  Then:
+breakages, chatter and overloads) at real time in 50 ms chunks.  A third of the way in, the worker that
+holds the most machines is stopped (SIGTERM: it hands them over); two thirds in, the busier of the other
+two is killed with SIGKILL, and the last worker watches all the machines.  Then:
 
 * *lost / doubled*: the events in the machines' logs (the union over the fleet) against a reference --
   the same chunks of each machine processed in this process from start to end, without interruption --
   and every id counted once; the alarms a subscriber received are checked for repeats too;
-* *resume*: for every machine the stopped or killed worker held, the time from the signal until its new worker has
-  re-primed on the chunks the broker kept and processed the first chunk the killed one had not (the
-  ``resumed`` line of the machine's log), and the signal's lag behind real time at that moment.
+* *resume*: for every machine the stopped or killed worker held, the time from the signal until its new
+  worker has re-primed on the chunks the broker kept and processed the first chunk the old one had not
+  (the ``resumed`` line of the machine's log), and the signal's lag behind real time at that moment.
 """
 
 from __future__ import annotations

@@ -125,6 +125,9 @@ def register(app: typer.Typer) -> None:
                                                       "needs --events FOLDER.")] = None,
         fleet: Annotated[str, typer.Option("--fleet", help="Name of the fleet of workers to join with "
                                            "--worker.")] = "main",
+        hold: Annotated[float, typer.Option("--hold", help="With --worker: signal kept for the next worker to "
+                                            "re-prime its estimators on [s] (raise it for estimators with a "
+                                            "long memory).")] = 1.0,
         archive: Annotated[Optional[str], typer.Option(help="Archive events and their signal segments here "
                                                        "(SQLite file or PostgreSQL DSN).")] = None,
         mqtt: Annotated[Optional[str], typer.Option("--mqtt", help="Publish alarms to this broker "
@@ -187,7 +190,7 @@ def register(app: typer.Typer) -> None:
         if worker is not None:
             from drivesense.serve.fleet import FleetWorker
 
-            cfg.fleet = FleetWorker(worker, cfg.events, group=fleet)
+            cfg.fleet = FleetWorker(worker, cfg.events, group=fleet, hold_s=hold)
         if cfg.http is not None:
             _need("fastapi")
             _need("uvicorn")

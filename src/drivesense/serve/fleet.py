@@ -51,8 +51,10 @@ from drivesense.serve.outputs import EventLog
 
 __all__ = ["FleetWorker", "Membership", "MachineClaim", "owner_of", "HOLD_S", "KEEPALIVE_S", "TOPIC_PREFIX"]
 
-#: Signal kept unacknowledged after processing, for the next worker to re-prime on [s].
-HOLD_S = 2.0
+#: Signal kept unacknowledged after processing, for the next worker to re-prime on [s] (``--hold``).  The demo
+#: axis's estimator and detectors give an uninterrupted run's events from 0.5 s on (with the breakage
+#: detector's cut start kept besides); twice that by default.
+HOLD_S = 1.0
 #: Keep-alive of a worker's membership connection [s] (a silent worker is gone after 1.5 of them).
 KEEPALIVE_S = 2
 #: Quiet time after a membership change before machines move [s] (workers starting together settle first).
@@ -159,11 +161,19 @@ class Membership:
         """Names of the live workers (this one included)."""
         return {*self.workers, self.worker}
 
+    def leave(self) -> None:
+        """Clear this worker's presence: the others take its machines over (as it lets go of each)."""
+        if not self.leaving:
+            self.leaving = True
+            if self.connected:
+                try:
+                    self.client.publish(self.topic + self.worker, b"", qos=1, retain=True).wait_for_publish(2.0)
+                except (RuntimeError, ValueError):    # the connection went meanwhile: the Will clears it
+                    pass
+
     def close(self) -> None:
         """Leave the fleet: presence cleared, connection closed."""
-        self.leaving = True
-        if self.connected:
-            self.client.publish(self.topic + self.worker, b"", qos=1, retain=True).wait_for_publish(2.0)
+        self.leave()
         self.client.disconnect()
         self.client.loop_stop()
 
@@ -315,6 +325,8 @@ class FleetWorker:
         for what, value, option in (("worker", worker, "--worker"), ("fleet", group, "--fleet")):
             if not value or any(c in value for c in "/+#\0") or value != value.strip():
                 raise ConfigError(f"{option} {value!r}: give a name without '/', '+', '#' or spaces at its ends")
+        if not (isinstance(hold_s, (int, float)) and 0 <= hold_s <= 60):
+            raise ConfigError(f"--hold must be 0..60 [s] of signal, got {hold_s!r}")
         self.worker, self.group, self.hold_s = worker, group, float(hold_s)
         self.folder = Path(folder)
         if self.folder.exists() and not self.folder.is_dir():
@@ -384,6 +396,8 @@ class FleetWorker:
             Another live worker has this worker's name.
         """
         self.membership = ms = Membership(asyncio.get_running_loop(), self.url, self.group, self.worker)
+        stopping = asyncio.ensure_future(stop.wait())
+        stopping.add_done_callback(lambda _: ms.changed.set())           # a stop wakes the wait below at once
         try:
             while not stop.is_set():
                 try:
@@ -397,16 +411,18 @@ class FleetWorker:
                     raise ConfigError(ms.conflict)
                 if not ms.connected or stop.is_set():
                     continue                      # without the broker's view, keep what is held
-                live = ms.live()
+                live, going = ms.live(), []
                 for mid, m in service.machines.items():
                     mine = owner_of(mid, live) == self.worker
                     if mine and mid not in self.holding:
                         self.holding[mid] = asyncio.create_task(self._hold(service, m), name=f"hold-{mid}")
                     elif not mine and mid in self.holding:
-                        await self._let_go(mid)
+                        going.append(mid)
+                await asyncio.gather(*(self._let_go(mid) for mid in going))
         finally:
-            for mid in list(self.holding):
-                await self._let_go(mid)
+            ms.leave()                            # the others start claiming now; each claim waits for its lock
+            await asyncio.gather(*(self._let_go(mid) for mid in list(self.holding)))
+            stopping.cancel()
             ms.close()
 
     async def _let_go(self, mid: str) -> None:
