@@ -41,7 +41,7 @@ def invoke(*args):
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory) -> Path:
     """AXIS.toml and the demo's idle runs idle*.nc (what a user has for --axis and --idle)."""
-    from drivesense.bench.monitor import setup_demo_axis
+    from drivesense.bench.rig import setup_demo_axis
 
     folder = tmp_path_factory.mktemp("demo")
     setup_demo_axis(folder)

@@ -26,8 +26,9 @@ import urllib.request
 from collections import Counter
 from pathlib import Path
 
-from drivesense.bench.monitor import (close_quietly, publisher_traces, run_child, setup_demo_axis,
-                                      subscribe_alarms, wait_until, write_config)
+from drivesense.bench.monitor import publisher_traces
+from drivesense.bench.rig import (CLI, close_quietly, run_child, setup_demo_axis, subscribe_alarms, wait_until,
+                                  write_config)
 from drivesense.serve.broker import LocalBroker, free_port
 from drivesense.serve.config import load_config
 from drivesense.serve.fleet import HOLD_S, owner_of
@@ -38,7 +39,6 @@ __all__ = ["run_failover", "RESUME_S_MAX"]
 
 #: The issue's target: a killed worker's machines resume within this time [s].
 RESUME_S_MAX = 5.0
-_CLI = "from drivesense.cli import main; main()"
 
 
 def _lines(path: Path) -> list[dict]:
@@ -113,7 +113,7 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
         for w in workers:
             ports[w] = free_port()
             with open(work / f"failover-{w}.log", "wb") as log:
-                procs[w] = subprocess.Popen([sys.executable, "-c", _CLI, "monitor", str(cfg), "--worker", w,
+                procs[w] = subprocess.Popen([sys.executable, "-c", CLI, "monitor", str(cfg), "--worker", w,
                                              "--events", str(events), "--http", f"127.0.0.1:{ports[w]}",
                                              "--duration", "900", "--json", str(work / f"failover-{w}.json")],
                                             stdout=log, stderr=log)

@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from drivesense.bench.failover import RESUME_S_MAX, run_failover
-from drivesense.bench.monitor import CUT_S, setup_demo_axis
+from drivesense.bench.monitor import CUT_S
+from drivesense.bench.rig import CLI, setup_demo_axis
 from drivesense.fleet.batch import ROWS, local_cluster, read_rows, run_batch
 from drivesense.fleet.inputs import file_inputs
 from drivesense.fleet.jobs import DetectJob
@@ -50,7 +51,6 @@ TARGETS = {"speedup_2_workers_min": 1.8, "overhead_per_task_max": 0.10, "failove
 RECORDING_S = 60.0
 #: Columns of a row that are about the run, not the result.
 _RUN_COLUMNS = {"seconds", "finished", "worker", "input"}
-_CLI = "from drivesense.cli import main; main()"
 
 
 def _recordings(folder: Path, n: int, seconds: float) -> list[Path]:
@@ -109,7 +109,7 @@ def _on_cluster(job, items, out: Path, warm: Path, workers: int) -> tuple[float,
 def _resume(work: Path, folder: Path, n: int, serial_out: Path, keys) -> dict:
     """Kill ``drivesense batch detect`` half-way (SIGKILL, process group), run it again; what was redone."""
     out = work / "resume"
-    cmd = [sys.executable, "-c", _CLI, "batch", "detect", str(folder), "--teeth", "2", "--axis",
+    cmd = [sys.executable, "-c", CLI, "batch", "detect", str(folder), "--teeth", "2", "--axis",
            str(work / "AXIS.toml"),
            *(a for p in sorted(work.glob("idle*.nc")) for a in ("--idle", str(p))), "--out", str(out),
            "--workers", "2", "--json", str(work / "resume.json")]

@@ -22,12 +22,13 @@ import sys
 import tempfile
 import time
 import urllib.request
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import psutil
 
+from drivesense.bench.rig import (CLI, close_quietly, end_process, mqtt_client, run_child, setup_demo_axis,
+                                  subscribe_alarms, wait_until, write_config)
 from drivesense.serve.broker import LocalBroker, find_mosquitto, free_port
 from drivesense.archive import open_archive
 from drivesense.io import write_recording
@@ -35,20 +36,16 @@ from drivesense.recording import Recording
 from drivesense.serve.config import load_config
 from drivesense.serve.demo import demo_estimator, demo_monitor
 from drivesense.serve.service import QUEUE_CHUNKS, MachineSpec, MonitorService
-from drivesense.serve.mqtt import parse_mqtt_url
-from drivesense.serve.sources import ReplaySource, SimulatedSource, demo_condition
+from drivesense.serve.sources import ReplaySource, SimulatedSource
 from drivesense.serve.wire import MAGIC, Chunk, decode_chunk, encode_chunk
-from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
-__all__ = ["run_monitor_bench", "setup_demo_axis", "write_config", "run_child", "wait_until", "subscribe_alarms",
-           "close_quietly", "publisher_traces", "TARGETS", "CUT_S"]
+__all__ = ["run_monitor_bench", "publisher_traces", "TARGETS", "CUT_S"]
 
 #: The issue's targets.
 TARGETS = {"axes_per_core_min": 50, "alarm_p99_ms_max": 5.0, "memory_mb_per_signal_hour_max": 5.0}
 #: Length of each simulated cut [s].
 CUT_S = 4.0
 _SEED = 7
-_CLI = "from drivesense.cli import main; main()"
 
 
 def _trace(seed: int = _SEED, cuts: int = 4, *, event_share: float = 1.0, rotate: int = 0):
@@ -75,24 +72,6 @@ def _stats_ms(values) -> dict:
     v = np.asarray(values, dtype=float) * 1e3
     return {"count": int(v.size), **{f"p{q}_ms": round(float(np.percentile(v, q)), 3) if v.size else None
                                      for q in (50, 99)}, "max_ms": round(float(v.max()), 3) if v.size else None}
-
-
-def wait_until(cond, timeout: float, step: float = 0.1) -> bool:
-    """Whether ``cond()`` came true within ``timeout``, asked every ``step``.
-
-    Parameters
-    ----------
-    cond : callable
-        Returns true once the wait is over.
-    timeout : float
-        Longest wait [s].
-    step : float
-        Time between two tries [s].
-    """
-    deadline = time.time() + timeout
-    while time.time() < deadline and not cond():
-        time.sleep(step)
-    return bool(cond())
 
 
 def _cost(n_axes: int, *, chunk_s: float, warm_s: float, measure_s: float, trace) -> dict:
@@ -141,9 +120,9 @@ def _realtime_child(n: int, seconds: float, chunk_s: float, out: str, core: int 
         spec = MachineSpec(f"m{i}", ReplaySource(f"m{i}", traces[i % 3], speed=1.0, chunk_s=chunk_s, loop=100),
                            demo_monitor(f"m{i}"))
 
-        def process(chunk, _spec=spec, _orig=spec.monitor.process):
+        def process(chunk, _spec=spec, _orig=spec.monitor.process, **kw):
             depth[0] = max(depth[0], _spec.queue.qsize() + 1)
-            records = _orig(chunk)
+            records = _orig(chunk, **kw)
             lags.append(time.time() - chunk.arrival)
             return records
         spec.monitor.process = process
@@ -170,44 +149,6 @@ def _realtime_child(n: int, seconds: float, chunk_s: float, out: str, core: int 
                                      "queue_never_full": not full, "keeps_up": share >= 0.99 and not full}))
 
 
-def run_child(name: str, args: dict, work: Path, core: int | None = None, timeout: float | None = None):
-    """This module's ``_NAME_child`` in a subprocess: the Popen, or with a ``timeout`` [s] its JSON when it ends.
-
-    Parameters
-    ----------
-    name : str
-        The child function's name between ``_`` and ``_child``.
-    args : dict
-        Its keyword arguments (JSON); ``out`` is added.
-    work : Path
-        Folder of its JSON output and log.
-    core : int, optional
-        Pin it to this core.
-    timeout : float, optional
-        Wait this long [s] for its JSON (None: return the Popen).
-    """
-    code = f"import json, sys; from drivesense.bench import monitor as m; m._{name}_child(**json.loads(sys.argv[1]))"
-    args = {**args, "out": str(work / f"{name}.json"), **({"core": core} if core is not None else {})}
-    with open(work / f"{name}.log", "wb") as log:
-        proc = subprocess.Popen([sys.executable, "-c", code, json.dumps(args)], stdout=log, stderr=log)
-    if timeout is None:
-        return proc
-    _ended(proc, timeout)
-    if proc.returncode != 0 or not (work / f"{name}.json").exists():
-        raise RuntimeError(f"{name} subprocess failed (exit {proc.returncode}): "
-                           f"{(work / f'{name}.log').read_text(errors='replace')[-800:]}")
-    return json.loads((work / f"{name}.json").read_text())
-
-
-def _ended(proc, timeout: float = 0.0) -> None:
-    """Wait ``timeout`` [s] for a subprocess, then kill it."""
-    try:
-        proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-
-
 def _throughput(work: Path, *, quick: bool, n_axes: int | None = None, realtime_axes: int | None = None) -> dict:
     """The throughput part: steady-state cost at 50 and 10 ms chunks on core 0, then the real-time run."""
     n, (warm, meas) = n_axes or (10 if quick else 50), ((1.0, 2.0) if quick else (2.0, 8.0))
@@ -227,55 +168,6 @@ def _throughput(work: Path, *, quick: bool, n_axes: int | None = None, realtime_
             "monitor_over_estimator": steady["chunk_50ms"]["monitor_over_estimator"], "realtime": rt}
 
 
-def _mqtt(url: str, name: str, callbacks: dict | None = None, clean_session: bool = True):
-    """A connected paho client, its network thread started."""
-    import paho.mqtt.client as mqtt
-
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"bench-{name}-{os.getpid()}",
-                         clean_session=clean_session)
-    client.reconnect_delay_set(0.1, 1.0)
-    client.max_inflight_messages_set(1000)
-    for key, fn in (callbacks or {}).items():
-        setattr(client, key, fn)
-    client.connect_async(*parse_mqtt_url(url), keepalive=10)          # retried until the broker answers
-    client.loop_start()
-    wait_until(client.is_connected, 10.0, 0.02)
-    return client
-
-
-def close_quietly(x) -> None:
-    """Stop a service, end a subprocess, disconnect an MQTT client (None: nothing).
-
-    Parameters
-    ----------
-    x : object
-        A service, subprocess, paho client or None.
-    """
-    if isinstance(x, _Service):
-        x.stop()
-    elif isinstance(x, subprocess.Popen):
-        _ended(x)
-    elif x is not None:
-        x.disconnect()
-        x.loop_stop()
-
-
-def subscribe_alarms(url: str) -> tuple:
-    """A subscriber on ``+/alarm`` (persistent session), its list of (receive time [s since the epoch], record).
-
-    Parameters
-    ----------
-    url : str
-        ``mqtt://HOST[:PORT]``.
-    """
-    got: list = []
-    client = _mqtt(url, "alarms", {"on_connect": lambda c, u, f, r, p=None: c.subscribe("+/alarm", qos=1),
-                                   "on_message": lambda c, u, m: got.append((time.time(), json.loads(m.payload)))},
-                   False)
-    time.sleep(0.5)
-    return client, got, time.time()
-
-
 def publisher_traces(machines: list) -> dict:
     """The recordings the publisher plays, by machine: one simulated trace, machine i from i * 1.2 s on.
 
@@ -293,7 +185,7 @@ def _publish_child(url: str, machines: list, seconds: float, out: str, core: int
     """Subprocess: each machine's event cuts published at real time in 50 ms chunks, starts spread evenly."""
     _pin(0, core)
     traces = publisher_traces(machines)
-    client, sent = _mqtt(url, "publish", None, False), dict.fromkeys(machines, 0)
+    client, sent = mqtt_client(url, "publish", None, False), dict.fromkeys(machines, 0)
 
     async def play(i: int, mid: str, stop: asyncio.Event) -> None:
         async def put(c) -> None:
@@ -314,43 +206,6 @@ def _publish_child(url: str, machines: list, seconds: float, out: str, core: int
     Path(out).write_text(json.dumps({"sent": sent}))
 
 
-def setup_demo_axis(work: Path) -> None:
-    """AXIS.toml (``drivesense axis --out``) and the demo's simulated idle runs ``idle*.nc`` in ``work``.
-
-    Parameters
-    ----------
-    work : Path
-        The folder (it exists).
-    """
-    subprocess.run([sys.executable, "-c", _CLI, "axis", "--out", str(work / "AXIS.toml")], check=True,
-                   stdout=subprocess.DEVNULL)
-    for i, rec in enumerate(simulate_idle(demo_condition(), replace(ScenarioSettings(), duration=6.0), seed=5000)):
-        write_recording(rec, work / f"idle{i}.nc")
-
-
-def write_config(path: Path, machines: dict, service: dict) -> Path:
-    """A monitor config: ``machines`` id -> source table, each the demo axis X (idle runs next to it).
-
-    Parameters
-    ----------
-    path : Path
-        The TOML file to write (the idle runs lie next to it).
-    machines : dict
-        Machine id -> source table.
-    service : dict
-        The ``[service]`` table.
-    """
-    value, idle = json.dumps, json.dumps(sorted(p.name for p in path.parent.glob("idle*.nc")))   # JSON is TOML here
-    lines = ["[service]", *(f"{k} = {value(v)}" for k, v in service.items()), ""]
-    for mid, src in machines.items():
-        lines += ["[[machine]]", f"id = {value(mid)}", "teeth = 2",
-                  "source = { " + ", ".join(f"{k} = {value(v)}" for k, v in src.items()) + " }", "[[machine.axis]]",
-                  'name = "x"', 'method = "vibration"', 'axis_file = "AXIS.toml"', f"idle = {idle}",
-                  "force_limit = 400.0", ""]
-    path.write_text("\n".join(lines))
-    return path
-
-
 class _Service:
     """``drivesense monitor CONFIG --http ... --json ...`` in a subprocess (pinned to ``core``), once it is up."""
 
@@ -358,7 +213,7 @@ class _Service:
         self.http, self.summary, self.log_path = free_port(), work / f"summary-{tag}.json", work / f"service-{tag}.log"
         self.hung = False
         with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-c", _CLI, "monitor", str(config),
+            self.proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-c", CLI, "monitor", str(config),
                                           "--http", f"127.0.0.1:{self.http}", "--duration", "900", "--json",
                                           str(self.summary)], stdout=log, stderr=log)
         _pin(self.proc.pid, core)
@@ -386,7 +241,7 @@ class _Service:
             self.hung = not wait_until(lambda: self.proc.poll() is not None, timeout)
             if self.hung:
                 self.proc.send_signal(signal.SIGABRT)
-                _ended(self.proc, 5.0)
+                end_process(self.proc, 5.0)
         return json.loads(self.summary.read_text()) if self.summary.exists() else None
 
 
@@ -408,7 +263,7 @@ def _latency(broker: LocalBroker, work: Path, *, quick: bool, core: int | None =
         pub = run_child("publish", {"url": broker.url, "machines": machines, "seconds": seconds}, work, 1)
         time.sleep(5.0)                                        # the publisher starts (imports, simulates)
         (ps := psutil.Process(svc.proc.pid)).cpu_percent()    # the service's CPU from here on
-        _ended(pub, seconds + 180)
+        end_process(pub, seconds + 180)
         cpu, t_end, sent = ps.cpu_percent() / 100, time.time(), json.loads((work / "publish.json").read_text())["sent"]
         wait_until(lambda: sum(x["chunks"] + x["rejected"] for x in svc.machines().values()) >= sum(sent.values()),
                    60, 0.2)
@@ -441,7 +296,7 @@ def _garbage(url: str, machine: str, channels: list) -> list:
             ("data shorter than the header says", good[:-8]), ("repeated seq 0", good),
             ("out-of-order seq 1", encode_chunk(machine, 1, 0.05, 1e4, zeros)),
             ("another machine's chunk", encode_chunk("elsewhere", 10**7, 0.0, 1e4, zeros))]
-    client = _mqtt(url, "garbage")
+    client = mqtt_client(url, "garbage")
     for _, payload in msgs:
         client.publish(f"{machine}/drive", payload, qos=1).wait_for_publish(10)
     close_quietly(client)
@@ -474,7 +329,7 @@ def _faults(broker: LocalBroker, work: Path, *, quick: bool) -> dict:
         reconnected, alive = wait_until(svc.connected, 10.0), svc.proc.poll() is None
         wait_until(lambda: sum(r["machine"] in rp for r in _read_log(events)) >= 3, 30.0)
         time.sleep(0.5)
-        _ended(svc.proc)                                       # (c) kill -9 ...
+        end_process(svc.proc)                                       # (c) kill -9 ...
         t_kill, before_kill, got1 = time.time(), _read_log(events), list(got)
         seen = {r["id"] for _, r in got1}
         out["broker_restart"] = {"survived": bool(after and reconnected and alive), "details": {

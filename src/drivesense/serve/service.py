@@ -320,8 +320,11 @@ class MonitorService:
         if isinstance(item, Exception):
             m.monitor.reject(str(item))
             return
-        try:                                          # a chunk the machine's last worker handled: state only
-            records = m.monitor.process(item, emit=m.claim is None or not m.claim.priming(item))
+        try:
+            if m.claim is None:
+                records = m.monitor.process(item)
+            else:                                     # a chunk the machine's last worker handled: state only
+                records = m.monitor.process(item, emit=not m.claim.priming(item))
         except Exception as exc:  # noqa: BLE001 - a bug on one machine's data never stops the service
             m.monitor.reject(f"{type(exc).__name__}: {exc}")
             return
