@@ -232,11 +232,8 @@ class MachineClaim:
         if len(fields) >= 2 and fields[0].lstrip("-").isdigit():
             self.prime_through, self.previous = int(fields[0]), fields[1]
         self.marked = self.prime_through
-        self._write_line({"claim": self.machine, "worker": self.worker, "at": time.time(),
+        self.log.note({"claim": self.machine, "worker": self.worker, "at": time.time(),
                           "previous": self.previous, "prime_through": self.prime_through})
-
-    def _write_line(self, obj: dict) -> None:
-        self.log._write(obj)                       # an audit line: skipped when the log is read back
 
     def priming(self, chunk: Any) -> bool:
         """Whether a chunk only re-primes the state (the last worker processed it and logged its events).
@@ -280,7 +277,7 @@ class MachineClaim:
         if not self.resumed and seq is not None and (self.prime_through is None or seq > self.prime_through):
             self.resumed = True
             now = time.time()
-            self._write_line({"resumed": self.machine, "worker": self.worker, "at": now, "seq": seq,
+            self.log.note({"resumed": self.machine, "worker": self.worker, "at": now, "seq": seq,
                               "primed": self.primed, "lag_s": now - item.arrival if hasattr(item, "arrival")
                               else None})
         m.source.settle(self.marked, m.monitor.replay_from())
@@ -298,7 +295,7 @@ class MachineClaim:
         try:
             if seq is not None and seq != self.marked:
                 self.mark(seq)
-            self._write_line({"released": self.machine, "worker": self.worker, "at": time.time(),
+            self.log.note({"released": self.machine, "worker": self.worker, "at": time.time(),
                               "marked": self.marked})
             self.log.close()
         finally:

@@ -153,6 +153,18 @@ class EventLog:
         self.recent.append(record)
         return record
 
+    def note(self, record: dict) -> None:
+        """Write a line that is no event (an audit note: who held a machine when); skipped when read back.
+
+        Parameters
+        ----------
+        record : dict
+            Strict-JSON values, with neither ``id`` nor ``ack``.
+        """
+        if "id" in record or "ack" in record:
+            raise ValueError("a note has neither 'id' nor 'ack' (those lines are events and acknowledgements)")
+        self._write(record)
+
     def acknowledge(self, event_id: str, by: str = "") -> dict:
         """Mark an event acknowledged (an ``{"ack": id}`` line in the log).
 
