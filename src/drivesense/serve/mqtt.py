@@ -30,7 +30,7 @@ from drivesense.errors import ConfigError
 from drivesense.serve.sources import Put, Source
 from drivesense.serve.wire import WireError, decode_chunk
 
-__all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url", "RECEIVE_MAXIMUM", "SESSION_EXPIRY_S"]
+__all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url", "RECEIVE_MAXIMUM", "SESSION_EXPIRY_S", "MAX_HOLD_S"]
 
 #: Unacknowledged messages the broker may send a hand-acknowledging link (MQTT 5 receive maximum).
 RECEIVE_MAXIMUM = 2000
@@ -367,8 +367,9 @@ class MQTTSource(Source):
         done = 0
         while self._processed:
             link, mid, seq, t_end = self._unacked[0]
-            if seq is not None and (seq > marked_seq or t_end > cutoff) and len(self._unacked) <= RECEIVE_MAXIMUM // 2:
-                break
+            crowded = len(self._unacked) > RECEIVE_MAXIMUM // 2
+            if seq is not None and (seq > marked_seq or (t_end > cutoff and not crowded)):
+                break                             # (never past the mark; past the cut-off only when too many wait)
             link.ack(mid)
             self._unacked.popleft()
             self._held.discard((link, mid))
