@@ -230,3 +230,28 @@ def test_the_breakage_detector_replayed_from_before_a_cut_gives_the_same_statist
         a, b = whole[second_cut], late[second_cut.start - start:]
         assert np.isfinite(a).sum() > 1000
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, equal_nan=True)
+
+
+def test_a_claim_that_cannot_read_the_machines_log_is_shown_and_retried(tmp_path, monkeypatch):
+    import drivesense.serve.fleet as fleet
+    from drivesense.serve import MachineSpec
+
+    monkeypatch.setattr(fleet, "CLAIM_RETRY_S", 0.05)
+    (tmp_path / "m1.jsonl").write_text("not json\n")               # a log that is no drivesense event log
+    worker = FleetWorker("w1", tmp_path)
+    spec = MachineSpec("m1", MQTTSource("m1", "mqtt://127.0.0.1:1"), None)
+
+    async def main():
+        task = asyncio.create_task(worker._hold(None, spec))
+        for _ in range(100):
+            if spec.state == "error":
+                break
+            await asyncio.sleep(0.02)
+        assert spec.state == "error" and "claim failed: ConfigError" in spec.source_error, spec.source_error
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        assert spec.state == "standby"
+        b = MachineClaim(tmp_path, "m1", "w2")                       # the lock was let go
+        with pytest.raises(ConfigError, match="not a JSON record"):
+            await asyncio.wait_for(b.acquire(), 2.0)
+    asyncio.run(main())

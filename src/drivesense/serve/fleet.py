@@ -59,6 +59,8 @@ HOLD_S = 1.0
 KEEPALIVE_S = 2
 #: Quiet time after a membership change before machines move [s] (workers starting together settle first).
 SETTLE_S = 0.3
+#: Wait before a failed claim (an unreadable event log, a folder gone) is tried again [s].
+CLAIM_RETRY_S = 5.0
 #: Topic prefix of the fleet's membership.
 TOPIC_PREFIX = "drivesense/fleet"
 _MARK_BYTES = 256
@@ -319,7 +321,7 @@ class FleetWorker:
     """
 
     def __init__(self, worker: str, folder: str | Path, *, group: str = "main", hold_s: float = HOLD_S) -> None:
-        for what, value, option in (("worker", worker, "--worker"), ("fleet", group, "--fleet")):
+        for value, option in ((worker, "--worker"), (group, "--fleet")):
             if not value or any(c in value for c in "/+#\0") or value != value.strip():
                 raise ConfigError(f"{option} {value!r}: give a name without '/', '+', '#' or spaces at its ends")
         if not (isinstance(hold_s, (int, float)) and 0 <= hold_s <= 60):
@@ -432,7 +434,14 @@ class FleetWorker:
         claim = MachineClaim(self.folder, m.id, self.worker)
         m.state = "claiming"
         try:
-            await claim.acquire()
+            while True:
+                try:
+                    await claim.acquire()
+                    break
+                except Exception as exc:  # noqa: BLE001 - an unreadable log or folder: said, and tried again
+                    m.state, m.source_error = "error", f"claim failed: {type(exc).__name__}: {exc}"
+                    await asyncio.sleep(CLAIM_RETRY_S)
+            m.source_error = None
             m.monitor = MachineMonitor(m.id, m.monitor.axes, history_s=m.monitor.history_s)   # state from scratch
             src = m.source
             m.source = MQTTSource(m.id, src.url, src.topic, client_id=f"drivesense-m-{self.group}-{m.id}",
