@@ -27,8 +27,8 @@ from collections import Counter
 from pathlib import Path
 
 from drivesense.bench.monitor import publisher_traces
-from drivesense.bench.rig import (CLI, close_quietly, run_child, setup_demo_axis, subscribe_alarms, wait_until,
-                                  write_config)
+from drivesense.bench.rig import (CLI, close_quietly, read_log_lines, run_child, setup_demo_axis, subscribe_alarms,
+                                  wait_until, write_config)
 from drivesense.serve.broker import LocalBroker, free_port
 from drivesense.serve.config import load_config
 from drivesense.serve.fleet import HOLD_S, owner_of
@@ -39,11 +39,6 @@ __all__ = ["run_failover", "RESUME_S_MAX"]
 
 #: The issue's target: a killed worker's machines resume within this time [s].
 RESUME_S_MAX = 5.0
-
-
-def _lines(path: Path) -> list[dict]:
-    text = path.read_bytes() if path.exists() else b""
-    return [json.loads(x) for x in text[:text.rfind(b"\n") + 1].splitlines()]
 
 
 def _held(port: int) -> tuple[set, set]:
@@ -172,7 +167,7 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
         close_quietly(sub)
         broker.stop()
     step("run")
-    logs = {m: _lines(events / f"{m}.jsonl") for m in machines}
+    logs = {m: read_log_lines(events / f"{m}.jsonl") for m in machines}
     one = write_config(work / "failover-reference.toml", {machines[0]: {"kind": "mqtt", "url": "mqtt://127.0.0.1"}},
                        {})
     reference = _reference(one, machines, sent)

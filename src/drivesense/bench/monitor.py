@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from drivesense.bench.rig import (CLI, close_quietly, end_process, mqtt_client, run_child, setup_demo_axis,
-                                  subscribe_alarms, wait_until, write_config)
+from drivesense.bench.rig import (CLI, close_quietly, end_process, mqtt_client, read_log_lines, run_child,
+                                  setup_demo_axis, subscribe_alarms, wait_until, write_config)
 from drivesense.serve.broker import LocalBroker, find_mosquitto, free_port
 from drivesense.archive import open_archive
 from drivesense.io import write_recording
@@ -247,8 +247,7 @@ class _Service:
 
 def _read_log(path: Path) -> list:
     """Event records of a JSONL event log (acknowledgements left out, and a last line torn by a kill)."""
-    text = path.read_bytes() if path.exists() else b""
-    return [r for r in map(json.loads, text[:text.rfind(b"\n") + 1].splitlines()) if "id" in r]
+    return [r for r in read_log_lines(path) if "id" in r]
 
 
 def _latency(broker: LocalBroker, work: Path, *, quick: bool, core: int | None = None, n_machines: int = 20) -> dict:

@@ -19,8 +19,8 @@ from drivesense.serve.mqtt import parse_mqtt_url
 from drivesense.serve.sources import demo_condition
 from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
-__all__ = ["CLI", "wait_until", "run_child", "end_process", "mqtt_client", "close_quietly", "subscribe_alarms",
-           "setup_demo_axis", "write_config"]
+__all__ = ["CLI", "read_log_lines", "wait_until", "run_child", "end_process", "mqtt_client", "close_quietly",
+           "subscribe_alarms", "setup_demo_axis", "write_config"]
 
 #: ``python -c CLI ARGS...`` runs ``drivesense ARGS...`` with this interpreter.
 CLI = "from drivesense.cli import main; main()"
@@ -187,3 +187,16 @@ def write_config(path: Path, machines: dict, service: dict) -> Path:
                   "force_limit = 400.0", ""]
     path.write_text("\n".join(lines))
     return path
+
+
+def read_log_lines(path: Path) -> list[dict]:
+    """Every line of a JSONL event log as a record (events, acknowledgements, notes), a last line torn by a kill
+    left out; no file: none.
+
+    Parameters
+    ----------
+    path : Path
+        The log.
+    """
+    text = path.read_bytes() if path.exists() else b""
+    return [json.loads(x) for x in text[:text.rfind(b"\n") + 1].splitlines()]
