@@ -24,6 +24,9 @@ def test_fleet_bench_quick():
     assert out["two_workers"]["tasks_per_worker"] and sum(out["two_workers"]["tasks_per_worker"]) == 4
     for key in ("speedup_2_over_1", "overhead_per_task", "one_worker_over_serial"):
         assert isinstance(out[key], float)
+    assert out["rounds"] == 1 and len(out["speedup_rounds"]) == 1 and out["one_worker"]["walls_s"]
+    for run in ("one_worker", "two_workers"):                 # a task's CPU time is within its wall time
+        assert 0 < out[run]["task_cpu_s_median"] <= out[run]["task_compute_s_median"] * 1.05 + 0.01
     assert out["identical_to_serial"] == {"one_worker": True, "two_workers": True}
     resume = out["resume"]
     assert resume["survived"], resume

@@ -29,9 +29,9 @@ from drivesense.io import read_recording, write_recording
 
 runner = CliRunner()
 #: Columns of a summary row that every input has.
-ROW_COLUMNS = ["input", "key", "status", "error", "outputs", "seconds"]
+ROW_COLUMNS = ["input", "key", "status", "error", "outputs", "seconds", "cpu_seconds"]
 #: Columns about the run (when, where, how long), not about the result.
-RUN_COLUMNS = {"seconds", "finished", "worker"}
+RUN_COLUMNS = {"seconds", "cpu_seconds", "finished", "worker"}
 
 
 def invoke(*args):
@@ -182,6 +182,7 @@ def test_serial_batch_writes_results_rows_and_summary_in_input_order(demo, trace
     assert list(frame["input"]) == [i.name for i in items] == [str(p) for p in sorted(folder.glob("*.nc"))]
     assert list(frame["key"]) == [r["key"] for r in report.rows]
     assert (frame["status"] == "ok").all() and (frame["error"] == "").all() and (frame["seconds"] >= 0).all()
+    assert ((frame["cpu_seconds"] > 0) & (frame["cpu_seconds"] <= frame["seconds"] * 1.05 + 0.01)).all()
 
 
 def test_rerun_runs_nothing_and_a_new_input_runs_alone(demo, traces, tmp_path):

@@ -90,13 +90,14 @@ def run_task(job: BatchJob, item: BatchInput, out_dir: str, key: str) -> dict:
     -------
     dict
         The row: ``input``, ``key``, ``status`` (``ok`` | ``error``), ``error``, ``outputs``, ``seconds``
-        (compute time [s]), ``finished``, ``worker``, and the job's values.
+        (compute time [s]), ``cpu_seconds`` (CPU time of the task's thread [s]: below ``seconds`` when the
+        worker shared its core), ``finished``, ``worker``, and the job's values.
     """
     from drivesense.io import write_json_file
 
     out = Path(out_dir)
     stem = out / RESULTS / f"{item.stem}-{key[:12]}"
-    began = time.perf_counter()
+    began, began_cpu = time.perf_counter(), time.thread_time()
     row: dict[str, Any] = {"input": item.name, "key": key, "job": job.kind}
     try:
         with _local_io():
@@ -105,7 +106,7 @@ def run_task(job: BatchJob, item: BatchInput, out_dir: str, key: str) -> dict:
                    **values)
     except Exception as exc:  # noqa: BLE001 - one input failing never stops the batch: it is recorded
         row.update(status="error", error=f"{type(exc).__name__}: {exc}"[:2000], outputs="")
-    row.update(seconds=time.perf_counter() - began, finished=_now(), worker=f"{socket.gethostname()}:{os.getpid()}")
+    row.update(seconds=time.perf_counter() - began, cpu_seconds=time.thread_time() - began_cpu, finished=_now(), worker=f"{socket.gethostname()}:{os.getpid()}")
     write_json_file(out / ROWS / f"{key}.json", row, indent=None)      # last: the results are in place
     return row
 
@@ -370,7 +371,7 @@ def _run_on_cluster(client, job: BatchJob, todo: dict, out: Path, finished) -> N
             item = todo[key]
             row = {"input": item.name, "key": key, "job": job.kind, "status": "error", "outputs": "",
                    "error": f"the task was lost: {type(exc).__name__}: {exc}"[:2000], "seconds": None,
-                   "finished": _now(), "worker": ""}
+                   "cpu_seconds": None, "finished": _now(), "worker": ""}
             write_json_file(out / ROWS / f"{key}.json", row, indent=None)
         finished(key, row, done)
 
