@@ -228,7 +228,8 @@ def register(app: typer.Typer) -> None:
         for mid in service.machines:
             st = service.machine_status(mid)
             n_ev = sum(1 for r in service.log.recent if r["machine"] == mid)     # (a fleet worker: its own)
-            per_machine[mid] = {k: st[k] for k in ("samples", "chunks", "rejected", "gaps", "busy_s", "last_error")}
+            per_machine[mid] = {k: st[k] for k in ("samples", "chunks", "rejected", "gaps", "publisher_restarts",
+                                                   "busy_s", "last_error")}
             per_machine[mid]["events"] = n_ev
             table.add_row(escape(mid), str(st["samples"]), str(st["chunks"]), str(st["rejected"]), str(st["gaps"]),
                           f"{st['busy_s']:.2f}", str(n_ev))
@@ -266,4 +267,5 @@ def register(app: typer.Typer) -> None:
         report = publish_recording(rec, mqtt, machine=mid, topic=topic, speed=speed, chunk_s=chunk_ms * 1e-3,
                                    repeat=repeat)
         console.print(f"published {report['chunks']} chunk(s), {report['samples']} samples of machine {mid} to "
-                      f"{mqtt} topic {report['topic']} in {report['wall_s']:.2f} s", markup=False, soft_wrap=True)
+                      f"{mqtt} topic {report['topic']} (session {report['session']}) in {report['wall_s']:.2f} s",
+                      markup=False, soft_wrap=True)

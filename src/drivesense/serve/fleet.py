@@ -48,6 +48,7 @@ from drivesense.errors import ConfigError
 from drivesense.serve.machine import MachineMonitor
 from drivesense.serve.mqtt import MQTTSource, parse_mqtt_url
 from drivesense.serve.outputs import EventLog
+from drivesense.serve.wire import StreamCursor
 
 __all__ = ["FleetWorker", "Membership", "MachineClaim", "owner_of", "HOLD_S", "KEEPALIVE_S", "TOPIC_PREFIX"]
 
@@ -204,6 +205,8 @@ class MachineClaim:
         self.fd: int | None = None
         self.log: EventLog | None = None
         self.prime_through: int | None = None     # chunks up to this seq were handled by the last worker
+        self.prime_session: str | None = None     # ... of this publisher's run
+        self.marked_session: str | None = None
         self.previous: str | None = None
         self.marked: int | None = None
         self.primed = 0
@@ -233,9 +236,13 @@ class MachineClaim:
         self.fd = fd
         if len(fields) >= 2 and fields[0].lstrip("-").isdigit():
             self.prime_through, self.previous = int(fields[0]), fields[1]
-        self.marked = self.prime_through
+            if len(fields) >= 4 and fields[3] != "-":
+                self.prime_session = fields[3]
+        self.marked, self.marked_session = self.prime_through, self.prime_session
+        self._prime = StreamCursor(self.prime_session, self.prime_through)
         self.log.note({"claim": self.machine, "worker": self.worker, "at": time.time(),
-                          "previous": self.previous, "prime_through": self.prime_through})
+                       "previous": self.previous, "prime_through": self.prime_through,
+                       "prime_session": self.prime_session})
 
     def priming(self, chunk: Any) -> bool:
         """Whether a chunk only re-primes the state (the last worker processed it and logged its events).
@@ -245,22 +252,24 @@ class MachineClaim:
         chunk : Chunk
             A chunk of this machine.
         """
-        if self.prime_through is not None and chunk.seq <= self.prime_through:
+        if self.prime_through is not None and self._prime.place(chunk) == "old":
             self.primed += 1
             return True
         return False
 
-    def mark(self, seq: int) -> None:
+    def mark(self, seq: int, session: str | None = None) -> None:
         """Record that every chunk up to ``seq`` is processed and its events logged (one ``pwrite``).
 
         Parameters
         ----------
         seq : int
             Chunk seq.
+        session : str, optional
+            The publisher's run it belongs to.
         """
-        text = f"{int(seq)} {self.worker} {time.time():.6f}\n".encode()
+        text = f"{int(seq)} {self.worker} {time.time():.6f} {session or '-'}\n".encode()
         os.pwrite(self.fd, text.ljust(_MARK_BYTES - 1) + b"\n", 0)
-        self.marked = int(seq)
+        self.marked, self.marked_session = int(seq), session
 
     def processed(self, m: Any, item: Any) -> None:
         """After each item the service handled: mark it (one ``pwrite``), then acknowledge what may go.
@@ -273,10 +282,11 @@ class MachineClaim:
             What was handled.
         """
         m.source.processed()
-        seq = m.monitor.last_seq
-        if seq is not None and seq != self.marked:
-            self.mark(seq)
-        if not self.resumed and seq is not None and (self.prime_through is None or seq > self.prime_through):
+        seq, session = m.monitor.last_seq, m.monitor.session
+        if seq is not None and (seq, session) != (self.marked, self.marked_session):
+            self.mark(seq, session)
+        if not self.resumed and seq is not None and (self.prime_through is None or session != self.prime_session
+                                                     or seq > self.prime_through):
             self.resumed = True
             now = time.time()
             self.log.note({"resumed": self.machine, "worker": self.worker, "at": now, "seq": seq,
@@ -284,19 +294,21 @@ class MachineClaim:
                               else None})
         m.source.settle(self.marked, m.monitor.replay_from())
 
-    def release(self, seq: int | None) -> None:
+    def release(self, seq: int | None, session: str | None = None) -> None:
         """Mark the last chunk handled, close the log and let the lock go.
 
         Parameters
         ----------
         seq : int or None
             The newest chunk processed (None: nothing).
+        session : str, optional
+            The publisher's run it belongs to.
         """
         if self.fd is None:
             return
         try:
-            if seq is not None and seq != self.marked:
-                self.mark(seq)
+            if seq is not None and (seq, session) != (self.marked, self.marked_session):
+                self.mark(seq, session)
             self.log.note({"released": self.machine, "worker": self.worker, "at": time.time(),
                               "marked": self.marked})
             self.log.close()
@@ -458,5 +470,6 @@ class FleetWorker:
                     for r in m.monitor.pending_segments():
                         service.archive.offer((r, None))
                 m.claim = None
-            claim.release(m.monitor.last_seq if claim.fd is not None else None)
+            if claim.fd is not None:
+                claim.release(m.monitor.last_seq, m.monitor.session)
             m.state = "standby"

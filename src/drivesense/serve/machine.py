@@ -9,7 +9,8 @@
 
 Every chunk is checked before it touches a state: the machine id, the
 sequence number (a repeated or older chunk is dropped; a missing one is
-counted as a gap), the sample rate and the channels.  A chunk that fails is
+counted as a gap; a new publisher session starts the stream afresh), the
+sample rate and the channels.  A chunk that fails is
 counted with its reason and leaves every state as it was, so one bad message
 never stops the machine.  The force and the input signals of the last
 seconds are kept in fixed-size ring buffers (constant memory however long
@@ -25,14 +26,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError
 from drivesense.estimate.base import check_chunk
 from drivesense.monitor.detector import Event
 from drivesense.monitor.overload import OverloadDetector
 from drivesense.recording import Recording
-from drivesense.serve.wire import Chunk
+from drivesense.serve.streams import FeedSpeedStream, Ring
+from drivesense.serve.wire import Chunk, StreamCursor
 
 __all__ = ["AxisPipeline", "MachineMonitor", "Ring", "FeedSpeedStream", "Segment", "event_id", "event_record"]
 
@@ -69,121 +70,6 @@ class Segment:
         return Recording.from_arrays(self.channels, fs=self.fs, t0=self.t0, meta=self.meta)
 
 
-class Ring:
-    """A fixed-capacity ring buffer of float64 samples (the newest ``capacity`` kept).
-
-    Parameters
-    ----------
-    capacity : int
-        Samples kept.
-    """
-
-    def __init__(self, capacity: int) -> None:
-        self.capacity = max(1, int(capacity))
-        self._data = np.zeros(self.capacity)
-        self._end = 0                       # samples ever written
-
-    def extend(self, values: np.ndarray) -> None:
-        """Append samples (only the last ``capacity`` of a long chunk are kept).
-
-        Parameters
-        ----------
-        values : ndarray
-            Samples [unit of the channel].
-        """
-        values = np.asarray(values, dtype=float)
-        total = values.size
-        values = values[-self.capacity:]
-        start = (self._end + total - values.size) % self.capacity
-        first = min(values.size, self.capacity - start)
-        self._data[start:start + first] = values[:first]
-        self._data[:values.size - first] = values[first:]
-        self._end += total
-
-    @property
-    def written(self) -> int:
-        """Samples ever written."""
-        return self._end
-
-    def last(self, n: int) -> np.ndarray:
-        """The newest ``n`` samples (fewer when fewer are held), oldest first.
-
-        Parameters
-        ----------
-        n : int
-            Samples wanted.
-        """
-        n = int(min(max(n, 0), self.capacity, self._end))
-        idx = (np.arange(self._end - n, self._end)) % self.capacity
-        return self._data[idx]
-
-
-@njit(cache=True, nogil=True)
-def _feed_kernel(pos: np.ndarray, last: np.ndarray, ring: np.ndarray, state: np.ndarray,
-                 fs: float) -> np.ndarray:  # pragma: no cover - compiled
-    """Path speed [m/s] per sample from positions (channels x samples) [m], a running mean over ``ring``."""
-    n = pos.shape[1]
-    width = ring.size
-    out = np.empty(n)
-    head, filled, total = int(state[0]), int(state[1]), state[2]
-    for i in range(n):
-        v2 = 0.0
-        for c in range(pos.shape[0]):
-            d = pos[c, i] - last[c]
-            last[c] = pos[c, i]
-            v2 += d * d
-        v = math.sqrt(v2) * fs
-        if filled == width:
-            total -= ring[head]
-        else:
-            filled += 1
-        ring[head] = v
-        total += v
-        head = (head + 1) % width
-        out[i] = max(total, 0.0) / filled
-    state[0], state[1], state[2] = head, filled, total
-    return out
-
-
-class FeedSpeedStream:
-    """Tool-path speed [m/s] from table positions, causal: a moving average over the last 50 ms.
-
-    The live counterpart of :func:`drivesense.monitor.pipeline.feed_speed_of` (which centres its window on a
-    whole trace): the detectors read it to hold off while the feed changes.  Constant state (a running
-    sum over a ring of the window), one compiled pass per chunk.
-
-    Parameters
-    ----------
-    fs : float
-        Sample rate [Hz].
-    window_s : float
-        Averaging window [s].
-    """
-
-    def __init__(self, fs: float, window_s: float = 50e-3) -> None:
-        self.fs = float(fs)
-        self.width = max(1, int(round(window_s * fs)))
-        self._names: list[str] | None = None
-        self._last = np.zeros(0)
-        self._ring = np.zeros(self.width)
-        self._state = np.zeros(3)
-
-    def push(self, positions: dict[str, np.ndarray]) -> np.ndarray:
-        """Feed speed per sample of the chunk [m/s].
-
-        Parameters
-        ----------
-        positions : dict of str to ndarray
-            ``*_table_position`` channels [m] (the same ones every chunk).
-        """
-        names = sorted(positions)
-        pos = np.ascontiguousarray(np.vstack([positions[c] for c in names]), dtype=float)
-        if self._names != names:                  # the first chunk (or another set of axes): start from here
-            self._names = names
-            self._last = pos[:, 0].copy()
-        return _feed_kernel(pos, self._last, self._ring, self._state, self.fs)
-
-
 @dataclass
 class AxisPipeline:
     """The estimator and the detectors of one axis.
@@ -203,7 +89,7 @@ class AxisPipeline:
     detectors: list = field(default_factory=list)
 
 
-def event_id(machine: str, event: Event) -> str:
+def event_id(machine: str, event: Event, session: str | None = None) -> str:
     """The id of an event: machine, detector, axis and sample time [us] (the same event, the same id).
 
     Parameters
@@ -212,11 +98,15 @@ def event_id(machine: str, event: Event) -> str:
         Machine id.
     event : Event
         The event.
+    session : str, optional
+        The publisher's run, appended as ``@SESSION``: a publisher whose clock restarts with it does not
+        repeat the ids of its earlier runs.
     """
-    return f"{machine}/{event.detector}/{event.axis}/{int(round(event.time_s * 1e6))}"
+    base = f"{machine}/{event.detector}/{event.axis}/{int(round(event.time_s * 1e6))}"
+    return base if session is None else f"{base}@{session}"
 
 
-def event_record(machine: str, event: Event, *, arrival: float, detected: float) -> dict:
+def event_record(machine: str, event: Event, *, arrival: float, detected: float, session: str | None = None) -> dict:
     """The JSON record of an event the service logs, publishes and archives.
 
     Parameters
@@ -229,9 +119,11 @@ def event_record(machine: str, event: Event, *, arrival: float, detected: float)
         Wall-clock arrival of the chunk holding its sample [s since the epoch].
     detected : float
         Wall-clock time it was detected [s since the epoch].
+    session : str, optional
+        The publisher's run the chunk came from (in the id and the record).
     """
-    return {"id": event_id(machine, event), "machine": machine, **event.to_json(),
-            "arrival": arrival, "detected": detected}
+    return {"id": event_id(machine, event, session), "machine": machine, **event.to_json(),
+            "arrival": arrival, "detected": detected, **({"session": session} if session is not None else {})}
 
 
 class MachineMonitor:
@@ -254,7 +146,7 @@ class MachineMonitor:
         self.axes = list(axes)
         self.history_s = max(float(history_s), sum(SEGMENT_S) + 0.5)
         self.fs: float | None = None
-        self.last_seq: int | None = None
+        self.cursor = StreamCursor()
         self.samples = 0
         self.chunks = 0
         self.rejected = 0
@@ -274,6 +166,21 @@ class MachineMonitor:
         self._t0: float | None = None
         self._kept: list[str] = []
         self.required = sorted({c for a in self.axes for c in a.estimator.channel_names})
+
+    @property
+    def last_seq(self) -> int | None:
+        """``seq`` of the last chunk processed (None: none yet)."""
+        return self.cursor.seq
+
+    @property
+    def session(self) -> str | None:
+        """The publisher's run the last chunk came from (None: it names none)."""
+        return self.cursor.session
+
+    @property
+    def restarts(self) -> int:
+        """Times the publisher started a new run (a new session, or ``seq`` 0 again) while this machine ran."""
+        return self.cursor.restarts
 
     # ------------------------------------------------------------------ checks
     def check(self, chunk: Chunk) -> dict[str, np.ndarray]:
@@ -297,10 +204,14 @@ class MachineMonitor:
         """
         if chunk.machine != self.machine:
             raise InvalidSignalError(f"chunk of machine '{chunk.machine}' reached machine '{self.machine}'")
-        if self.last_seq is not None and chunk.seq <= self.last_seq:
+        place = self.cursor.place(chunk)
+        if place == "old":
+            hint = (" (if its publisher restarted, the chunks must name a new 'session' in their header)"
+                    if chunk.session is None and chunk.seq == 0 else "")
             raise InvalidSignalError(f"machine '{self.machine}': chunk seq {chunk.seq} is not after seq "
-                                     f"{self.last_seq} (repeated or out of order), dropped")
-        if self.fs is not None and abs(chunk.fs - self.fs) > 1e-6 * self.fs:
+                                     f"{self.last_seq} (repeated or out of order, or of an ended session), "
+                                     f"dropped{hint}")
+        if self.fs is not None and place == "next" and abs(chunk.fs - self.fs) > 1e-6 * self.fs:
             raise InvalidSignalError(f"machine '{self.machine}': chunk at {chunk.fs:g} Hz, the stream runs at "
                                      f"{self.fs:g} Hz")
         missing = [c for c in self.required if c not in chunk.arrays]
@@ -367,6 +278,16 @@ class MachineMonitor:
         for c in [*self._kept, *(f"force_{a.axis}" for a in self.axes)]:
             self._rings[c] = Ring(cap)
 
+    def _restart(self) -> None:
+        """The publisher started a new run: its signal does not continue the last one's.  The segments of
+        events still waiting for signal are cut where the run ended; estimators and detectors start afresh
+        with the next chunk (as at the first one)."""
+        if self._pending:
+            self._collect_segments(cut=True)
+        self.fs = None
+        self.t_last = None
+        self._streams = []
+
     def process(self, chunk: Chunk, *, emit: bool = True) -> list[dict]:
         """Estimate and detect on one chunk; the event records it raised, in time order.
 
@@ -386,9 +307,12 @@ class MachineMonitor:
             self.reject(str(exc))
             return []
         began = time.perf_counter()
+        place = self.cursor.place(chunk)
+        if place == "restart":
+            self._restart()
         if self.fs is None:
             self._start(chunk)
-        if self.last_seq is not None and chunk.seq > self.last_seq + 1:
+        if place == "next" and self.last_seq is not None and chunk.seq > self.last_seq + 1:
             self.gaps += chunk.seq - self.last_seq - 1
         if self.t_last is not None:               # lost chunks or a clock jump: events keep their true time
             jump = chunk.t0 - (self.t_last + 1.0 / self.fs)
@@ -398,7 +322,7 @@ class MachineMonitor:
                 for _, _, det_streams, _ in self._streams:
                     for stream in det_streams:
                         stream.shift_time(jump)
-        self.last_seq = chunk.seq
+        self.cursor.advance(chunk)
         extra = {c: arrays[c] for c in ("spindle_speed", "spindle_power") if c in arrays}
         positions = {c: arrays[c] for c in arrays if c.endswith("_table_position")}
         if positions:
@@ -426,7 +350,7 @@ class MachineMonitor:
         self.t_last = chunk.t0 + (chunk.n - 1) / chunk.fs
         self.last_arrival = chunk.arrival
         now = time.time()
-        records = [event_record(self.machine, e, arrival=chunk.arrival, detected=now)
+        records = [event_record(self.machine, e, arrival=chunk.arrival, detected=now, session=chunk.session)
                    for e in sorted(events, key=lambda e: e.time_s)] if emit else []
         for r in records:
             self._pending.append((r, self._ring_index(r["time_s"])))
@@ -457,10 +381,10 @@ class MachineMonitor:
         """Absolute sample index (samples since the stream began) of a time [s]."""
         return int(round((time_s - self._t0) * self.fs))
 
-    def _collect_segments(self) -> None:
+    def _collect_segments(self, cut: bool = False) -> None:
         ring = self._rings[self.required[0]]
         before, after = (int(round(s * self.fs)) for s in SEGMENT_S)
-        while self._pending and self._pending[0][1] + after <= ring.written:
+        while self._pending and (cut or self._pending[0][1] + after <= ring.written):
             record, index = self._pending.popleft()
             end = ring.written
             start = max(index - before, end - ring.capacity, 0)
@@ -587,7 +511,8 @@ class MachineMonitor:
         return {"machine": self.machine, "axes": [a.axis for a in self.axes],
                 "detectors": sorted({d.name for a in self.axes for d in a.detectors}),
                 "fs": self.fs, "samples": self.samples, "chunks": self.chunks, "rejected": self.rejected,
-                "gaps": self.gaps, "time_jumps": self.time_jumps, "last_error": self.last_error,
+                "gaps": self.gaps, "time_jumps": self.time_jumps, "session": self.session,
+                "publisher_restarts": self.restarts, "last_error": self.last_error,
                 "lag_s": round(self.lag_s, 6),
                 "busy_s": round(self.busy_s, 6), "t_last": self.t_last, "limits": self.limits(),
                 "statistics": list(self.stats.values())}

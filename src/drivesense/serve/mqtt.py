@@ -28,7 +28,7 @@ from typing import Any
 
 from drivesense.errors import ConfigError
 from drivesense.serve.sources import Put, Source
-from drivesense.serve.wire import WireError, decode_chunk
+from drivesense.serve.wire import StreamCursor, WireError, decode_chunk
 
 __all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url", "RECEIVE_MAXIMUM", "SESSION_EXPIRY_S", "MAX_HOLD_S"]
 
@@ -266,11 +266,11 @@ class MQTTSource(Source):
         self.messages = 0
         self.redelivered = 0
         self._link: BrokerLink | None = None
-        self._unacked: deque = deque()         # (link, mid, seq, t_end) of each message handed on, in order
+        self._unacked: deque = deque()         # (link, mid, publisher run, seq, t_end) per message handed on
         self._held: set = set()                # (link, mid) of those
         self._processed = 0                    # how many of those the service has finished with
         self._newest_done: float | None = None  # last sample time of the newest processed chunk [s]
-        self._last_seq: int | None = None      # seq of the newest chunk handed on
+        self._cursor = StreamCursor()           # the newest chunk handed on
 
     @property
     def connected(self) -> bool:
@@ -323,15 +323,15 @@ class MQTTSource(Source):
     def _hold(self, link: BrokerLink, mid: int, item: Any) -> bool:
         """Keep a hand-acknowledged message for :meth:`settle`; False for a chunk handed on before (dropped)."""
         if isinstance(item, Exception):
-            entry = (link, mid, None, None)
-        elif self._last_seq is not None and item.seq <= self._last_seq:
+            entry = (link, mid, None, None, None)
+        elif self._cursor.place(item) == "old":
             self.redelivered += 1                 # the broker sent it again after a reconnection
             if (link, mid) not in self._held:     # (still held: acknowledged in its turn, not twice)
                 link.ack(mid)
             return False
         else:
-            self._last_seq = item.seq
-            entry = (link, mid, item.seq, item.t0 + (item.n - 1) / item.fs)
+            self._cursor.advance(item)
+            entry = (link, mid, self._cursor.restarts, item.seq, item.t0 + (item.n - 1) / item.fs)
         self._unacked.append(entry)
         self._held.add((link, mid))
         return True
@@ -339,7 +339,7 @@ class MQTTSource(Source):
     def processed(self) -> None:
         """The service is done with the oldest message handed on and not reported yet (hand-acknowledged only)."""
         if self.hold_s is not None and self._processed < len(self._unacked):
-            t_end = self._unacked[self._processed][3]
+            t_end = self._unacked[self._processed][4]
             if t_end is not None:
                 self._newest_done = t_end
             self._processed += 1
@@ -350,7 +350,9 @@ class MQTTSource(Source):
         A chunk is acknowledged once its seq is at most ``marked_seq`` (the claim's mark: everything up to it
         is processed and its events logged) and its last sample lies ``hold_s`` or more before the newest
         processed one, and before ``keep_from`` -- but never more than :data:`MAX_HOLD_S` or half the
-        receive maximum of messages are kept.  Messages that could not be read go with their neighbours.
+        receive maximum of messages are kept.  Messages that could not be read go with their neighbours, and
+        chunks of a publisher's run that has ended (a restart came after them) go as soon as they are
+        processed: the next holder would not replay them.
 
         Parameters
         ----------
@@ -366,9 +368,10 @@ class MQTTSource(Source):
             cutoff = min(cutoff, max(keep_from, self._newest_done - MAX_HOLD_S))
         done = 0
         while self._processed:
-            link, mid, seq, t_end = self._unacked[0]
+            link, mid, run, seq, t_end = self._unacked[0]
             crowded = len(self._unacked) > RECEIVE_MAXIMUM // 2
-            if seq is not None and (seq > marked_seq or (t_end > cutoff and not crowded)):
+            if seq is not None and run == self._cursor.restarts and (seq > marked_seq or (t_end > cutoff
+                                                                                          and not crowded)):
                 break                             # (never past the mark; past the cut-off only when too many wait)
             link.ack(mid)
             self._unacked.popleft()

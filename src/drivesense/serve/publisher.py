@@ -2,12 +2,14 @@
 
 What an edge device next to a controller runs (or a test feeding the monitor): the trace is cut into
 chunks, each published with QoS 1 on ``{machine}/drive`` at real time (or faster), sequence numbers and time
-continuing across repeats.
+continuing across repeats.  Each run names a new session, so a service that saw an earlier run takes this one
+for a restart of the publisher, not for old chunks.
 """
 
 from __future__ import annotations
 
 import asyncio
+import secrets
 import time
 
 from drivesense.errors import ConfigError
@@ -21,7 +23,7 @@ __all__ = ["publish_recording"]
 
 def publish_recording(recording: Recording, url: str, *, machine: str, topic: str | None = None,
                       speed: float = 1.0, chunk_s: float = 0.05, repeat: int = 1, connect_timeout: float = 10.0,
-                      client_id: str | None = None) -> dict:
+                      client_id: str | None = None, session: str | None = None) -> dict:
     """Publish a recording chunk by chunk; returns what was sent.
 
     Parameters
@@ -44,11 +46,14 @@ def publish_recording(recording: Recording, url: str, *, machine: str, topic: st
         How long to wait for the broker [s].
     client_id : str, optional
         MQTT client id.
+    session : str, optional
+        The run's session on the wire (default: a new random one, so that a service tells this run from the
+        last and starts the machine's stream afresh).
 
     Returns
     -------
     dict
-        ``chunks``, ``samples``, ``topic``, ``wall_s`` [s].
+        ``chunks``, ``samples``, ``topic``, ``session``, ``wall_s`` [s].
 
     Raises
     ------
@@ -59,6 +64,7 @@ def publish_recording(recording: Recording, url: str, *, machine: str, topic: st
 
     host, port = parse_mqtt_url(url)
     topic = topic or f"{machine}/drive"
+    session = session or secrets.token_hex(6)
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id or f"drivesense-publish-{machine}")
     client.max_inflight_messages_set(100)
     try:
@@ -70,7 +76,8 @@ def publish_recording(recording: Recording, url: str, *, machine: str, topic: st
     infos = []
 
     async def put(chunk) -> None:
-        info = client.publish(topic, encode_chunk(machine, chunk.seq, chunk.t0, chunk.fs, chunk.arrays), qos=1)
+        info = client.publish(topic, encode_chunk(machine, chunk.seq, chunk.t0, chunk.fs, chunk.arrays,
+                                                 session=session), qos=1)
         infos.append(info)
         sent["chunks"] += 1
         sent["samples"] += chunk.n
@@ -88,4 +95,4 @@ def publish_recording(recording: Recording, url: str, *, machine: str, topic: st
     finally:
         client.disconnect()
         client.loop_stop()
-    return {**sent, "topic": topic, "wall_s": time.time() - began}
+    return {**sent, "topic": topic, "session": session, "wall_s": time.time() - began}

@@ -490,6 +490,9 @@ class MonitorService:
                [({"machine": m.id}, m.monitor.rejected) for m in ms])
         metric("gaps_total", "counter", "Chunks missing from a machine's sequence.",
                [({"machine": m.id}, m.monitor.gaps) for m in ms])
+        metric("publisher_restarts_total", "counter",
+               "New runs of a machine's publisher (a new session, or seq 0 again).",
+               [({"machine": m.id}, m.monitor.restarts) for m in ms])
         metric("queue_depth", "gauge", "Chunks waiting per machine.",
                [({"machine": m.id}, m.queue.qsize() if m.queue is not None else 0) for m in ms])
         metric("lag_seconds", "gauge", "Arrival to end of processing of the last chunk.",

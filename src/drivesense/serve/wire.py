@@ -11,10 +11,16 @@ One MQTT message carries one chunk of one machine's drive signals::
 The header::
 
     {"machine": "vmc1", "seq": 17, "t0": 1.7, "fs": 10000.0, "n": 500,
-     "channels": [["x_current", "A"], ["x_motor_angle", "rad"], ...], "sent": 1764210000.123}
+     "channels": [["x_current", "A"], ["x_motor_angle", "rad"], ...], "sent": 1764210000.123,
+     "session": "5f0c2a91d3e4"}
 
 ``seq`` counts the chunks of a machine from 0 (the service drops a repeated or
-older one and counts the gap when one is missing), ``t0`` is the time of the
+older one and counts the gap when one is missing), ``session`` (optional, 1-64
+letters, digits and ``._:-``) names the publisher's run: a publisher that
+restarts sends a new session and counts ``seq`` from 0 again, and the service
+starts the machine's stream afresh (:class:`StreamCursor`).  Without sessions a
+chunk that counts from 0 again cannot be told from one delivered twice: it is
+refused, with a message that says so.  ``t0`` is the time of the
 first sample [s] on the machine's clock, ``fs`` the sample rate [Hz], units
 are any the :mod:`drivesense.units` table knows (converted to SI on arrival),
 ``sent`` the publisher's wall clock [s since the epoch] (optional).  A message
@@ -35,13 +41,15 @@ import numpy as np
 from drivesense.errors import InvalidSignalError
 from drivesense.units import quantity_of_channel, to_si
 
-__all__ = ["Chunk", "WireError", "encode_chunk", "decode_chunk", "MAGIC", "MAX_MESSAGE_BYTES"]
+__all__ = ["Chunk", "WireError", "encode_chunk", "decode_chunk", "StreamCursor", "MAGIC", "MAX_MESSAGE_BYTES"]
 
 #: First bytes of every message.
 MAGIC = b"DSC1"
 #: Largest message accepted [bytes] (64 MiB).
 MAX_MESSAGE_BYTES = 64 * 2**20
 _HEADER = struct.Struct("<4sI")
+#: Characters of a session name.
+_SESSION_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._:-")
 
 
 class WireError(InvalidSignalError):
@@ -68,6 +76,8 @@ class Chunk:
         Wall-clock time the chunk reached the service [s since the epoch].
     sent : float or None
         Wall-clock time the source sent it [s since the epoch], when known.
+    session : str or None
+        The publisher's run (``seq`` counts from 0 in each), when it says.
     """
 
     machine: str
@@ -77,6 +87,7 @@ class Chunk:
     arrays: dict
     arrival: float = field(default_factory=time.time)
     sent: float | None = None
+    session: str | None = None
 
     @property
     def n(self) -> int:
@@ -85,7 +96,8 @@ class Chunk:
 
 
 def encode_chunk(machine: str, seq: int, t0: float, fs: float, arrays: Mapping[str, np.ndarray],
-                 units: Mapping[str, str] | None = None, *, sent: float | None = None) -> bytes:
+                 units: Mapping[str, str] | None = None, *, sent: float | None = None,
+                 session: str | None = None) -> bytes:
     """One message of the layout above.
 
     Parameters
@@ -104,17 +116,27 @@ def encode_chunk(machine: str, seq: int, t0: float, fs: float, arrays: Mapping[s
         Unit per channel (default: the channel's SI unit).
     sent : float, optional
         Publisher's wall clock [s since the epoch] (default: now).
+    session : str, optional
+        The publisher's run: a new one for each start of the publisher (``seq`` from 0 in each).
     """
+    if session is not None and not _valid_session(session):
+        raise WireError(f"session {session!r}: 1-64 letters, digits and ._:- expected")
     names = list(arrays)
     data = [np.ascontiguousarray(arrays[c], dtype="<f8") for c in names]
     n = data[0].size if data else 0
     if any(d.ndim != 1 or d.size != n for d in data):
         raise WireError("every channel of a chunk must be 1-D and equally long")
     channels = [[c, (units or {}).get(c) or _si_unit(c)] for c in names]
-    header = json.dumps({"machine": machine, "seq": int(seq), "t0": float(t0), "fs": float(fs), "n": int(n),
-                         "channels": channels, "sent": float(time.time() if sent is None else sent)},
-                        allow_nan=False).encode()
+    fields = {"machine": machine, "seq": int(seq), "t0": float(t0), "fs": float(fs), "n": int(n),
+              "channels": channels, "sent": float(time.time() if sent is None else sent)}
+    if session is not None:
+        fields["session"] = session
+    header = json.dumps(fields, allow_nan=False).encode()
     return _HEADER.pack(MAGIC, len(header)) + header + b"".join(d.tobytes() for d in data)
+
+
+def _valid_session(value: object) -> bool:
+    return isinstance(value, str) and 0 < len(value) <= 64 and set(value) <= _SESSION_CHARS
 
 
 def _si_unit(channel: str) -> str:
@@ -176,6 +198,9 @@ def decode_chunk(payload: bytes, *, arrival: float | None = None) -> Chunk:
     sent = header.get("sent")
     sent = float(sent) if isinstance(sent, (int, float)) and not isinstance(sent, bool) and math.isfinite(sent) \
         else None
+    session = header.get("session")
+    if session is not None and not _valid_session(session):
+        raise WireError(f"chunk header field 'session' is invalid: {session!r} (1-64 letters, digits and ._:-)")
     body = payload[end:]
     if len(body) != 8 * n * len(channels):
         raise WireError(f"chunk of machine '{machine}' seq {seq}: {len(body)} data bytes, the header announces "
@@ -197,4 +222,57 @@ def decode_chunk(payload: bytes, *, arrival: float | None = None) -> Chunk:
             arrays[name] = to_si(row, unit, quantity=quantity_of_channel(name), name=name)[0]
         except ValueError as exc:
             raise WireError(f"chunk of machine '{machine}' seq {seq}: {exc}") from None
-    return Chunk(machine=machine, seq=seq, t0=t0, fs=fs, arrays=arrays, arrival=arrival, sent=sent)
+    return Chunk(machine=machine, seq=seq, t0=t0, fs=fs, arrays=arrays, arrival=arrival, sent=sent, session=session)
+
+
+class StreamCursor:
+    """Where a machine's stream stands -- its session and last ``seq`` -- and where a chunk falls in it.
+
+    :meth:`place` says, without changing anything, whether a chunk comes after the last one
+    (``"next"``), repeats or precedes it or belongs to a run that has ended (``"old"``), or starts a new
+    run of the publisher (``"restart"``: another session than the last); :meth:`advance` moves the
+    cursor to a chunk taken.
+
+    Parameters
+    ----------
+    session : str, optional
+        Session of the last chunk taken (a cursor restored from a mark).
+    seq : int, optional
+        Its ``seq`` (None: nothing taken yet).
+    """
+
+    #: Ended sessions remembered (a late chunk of one of them is old, not a restart).
+    KEEP_ENDED = 16
+
+    def __init__(self, session: str | None = None, seq: int | None = None) -> None:
+        self.session, self.seq = session, seq
+        self.ended: list[str] = []
+        self.restarts = 0
+
+    def place(self, chunk: Chunk) -> str:
+        """``"next"``, ``"old"`` or ``"restart"`` (see above).
+
+        Parameters
+        ----------
+        chunk : Chunk
+            A chunk of this stream's machine.
+        """
+        if self.seq is None:
+            return "next"
+        if chunk.session != self.session:
+            return "old" if chunk.session in self.ended else "restart"
+        return "next" if chunk.seq > self.seq else "old"
+
+    def advance(self, chunk: Chunk) -> None:
+        """Take a chunk (not an old one) as the stream's last.
+
+        Parameters
+        ----------
+        chunk : Chunk
+            The chunk.
+        """
+        if self.seq is not None and self.place(chunk) == "restart":
+            self.restarts += 1
+            if self.session is not None and self.session not in self.ended:
+                self.ended = [*self.ended, self.session][-self.KEEP_ENDED:]
+        self.session, self.seq = chunk.session, chunk.seq
