@@ -36,6 +36,7 @@ def test_fleet_bench_quick():
     assert fo["machines"] == 6 and fo["workers"] == 3 and fo["machines_moved"] >= 1, fo
     assert fo["events_reference"] > 0 and fo["all_marked_to_the_end"], fo
     assert (fo["events_lost"], fo["events_extra"], fo["events_doubled"], fo["alarms_doubled"]) == (0, 0, 0, 0), fo
+    assert fo["alarms_missing"] == 0, fo                  # every logged event had its alarm
     for phase in ("leave", "kill"):                       # SIGTERM (hand-over), then SIGKILL
         assert fo[phase]["machines_moved"] >= 1 and fo[phase]["exit"] == (0 if phase == "leave" else -9), fo[phase]
         assert all(r["resumed_s"] is not None and r["resumed_s"] <= 5.0 for r in fo[phase]["resume"]), fo[phase]

@@ -8,7 +8,9 @@ two is killed with SIGKILL, and the last worker watches all the machines.  Then:
 
 * *lost / doubled*: the events in the machines' logs (the union over the fleet) against a reference --
   the same chunks of each machine processed in this process from start to end, without interruption --
-  and every id counted once; the alarms a subscriber received are checked for repeats too;
+  and every id counted once; the alarms a subscriber received are checked for repeats too, and every
+  logged event must have had its alarm (an alarm the killed worker had not got to the broker is sent
+  again, marked ``republished``, by the machine's next worker);
 * *resume*: for every machine the stopped or killed worker held, the time from the signal until its new
   worker has re-primed on the chunks the broker kept and processed the first chunk the old one had not
   (the ``resumed`` line of the machine's log), and the signal's lag behind real time at that moment.
@@ -174,7 +176,8 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
     step("reference")
     ref_ids = {i for ids in reference.values() for i in ids}
     logged = [r["id"] for lines in logs.values() for r in lines if "id" in r]
-    alarm_ids = Counter(r["id"] for _, r in got)
+    alarm_ids = Counter(r["id"] for _, r in got if not r.get("republished"))
+    republished = Counter(r["id"] for _, r in got if r.get("republished"))
     t_leave = phases["leave"]["at"]
     for phase in phases.values():
         at = phase.pop("at")
@@ -192,12 +195,17 @@ def run_failover(work: Path, *, quick: bool = False, progress=None) -> dict:
            "events_reference": len(ref_ids), "events_logged": len(logged), "events_lost": len(lost),
            "events_extra": len(extra), "events_doubled": len(logged) - len(set(logged)),
            "lost_ids": sorted(lost)[:10], "extra_ids": sorted(extra)[:10],
-           "alarms_received": sum(alarm_ids.values()), "alarms_doubled": sum(c - 1 for c in alarm_ids.values()),
+           "alarms_received": sum(alarm_ids.values()) + sum(republished.values()),
+           "alarms_doubled": sum(c - 1 for c in alarm_ids.values()),
+           "alarms_missing": len(set(logged) - set(alarm_ids) - set(republished)),
+           "alarms_republished": sum(republished.values()),
+           "alarms_republished_twice": sum(1 for i in republished if i in alarm_ids),
            "leave": phases["leave"], "kill": phases["kill"], "hold_s": HOLD_S}
     resumes = [phases[k]["resume_s_max"] for k in phases]
     out["machines_moved"] = phases["kill"]["machines_moved"]
     out["resume_s_max"] = None if None in resumes else max(resumes)
     out["survived"] = bool(all(phases[k]["machines_moved"] for k in phases) and drained and not lost and not extra
                            and out["events_doubled"] == 0 and out["alarms_doubled"] == 0
+                           and out["alarms_missing"] == 0
                            and out["resume_s_max"] is not None and out["resume_s_max"] <= RESUME_S_MAX)
     return out

@@ -258,7 +258,8 @@ def run_fleet_bench(progress=None, *, quick: bool = False) -> dict:
             {"target": f"monitor failover: {failover['workers']} workers, {failover['machines']} machines, one killed: "
                        f"no event lost or doubled, its machines resume within {RESUME_S_MAX:g} s",
              "measured": {k: failover[k] for k in ("machines_moved", "events_reference", "events_lost", "events_extra",
-                                                   "events_doubled", "alarms_doubled", "resume_s_max")},
+                                                   "events_doubled", "alarms_doubled", "alarms_missing",
+                                                   "resume_s_max")},
              "met": failover["survived"]}]
         return {"fleet": out}
     finally:

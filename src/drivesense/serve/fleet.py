@@ -62,6 +62,9 @@ KEEPALIVE_S = 2
 SETTLE_S = 0.3
 #: Wait before a failed claim (an unreadable event log, a folder gone) is tried again [s].
 CLAIM_RETRY_S = 5.0
+#: Longest wait at a hand-over for the broker to acknowledge the machine's alarms [s] (else the next holder
+#: alarms them again).
+ALARM_WAIT_S = 2.0
 #: Topic prefix of the fleet's membership.
 TOPIC_PREFIX = "drivesense/fleet"
 _MARK_BYTES = 256
@@ -461,6 +464,8 @@ class FleetWorker:
             m.claim = claim
             if service.archive is not None:
                 service.counts["archive_caught_up"] += service.archive.catch_up(list(claim.log.recent))
+            if service.alarms is not None:        # the last holder died before the broker had these alarms
+                service.counts["alarms_republished"] += service.alarms.republish(claim.log)
             service.start_machine(m)
             await asyncio.Event().wait()          # until cancelled
         finally:
@@ -469,6 +474,10 @@ class FleetWorker:
                 if service.archive is not None:
                     for r in m.monitor.pending_segments():
                         service.archive.offer((r, None))
+                if service.alarms is not None:    # the machine's alarms acknowledged before its log is handed on
+                    deadline = time.monotonic() + ALARM_WAIT_S
+                    while service.alarms.undelivered(claim.log) and time.monotonic() < deadline:
+                        await asyncio.sleep(0.01)
                 m.claim = None
             if claim.fd is not None:
                 claim.release(m.monitor.last_seq, m.monitor.session)

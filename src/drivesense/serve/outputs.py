@@ -12,8 +12,14 @@ archive is filled from a worker thread (an event row and its signal segment
 in one transaction) and, on a restart, catches up with every logged event it
 lacks.  MQTT alarms go out with QoS 1 (``{machine}/alarm``; events that call
 for a stop also on ``{machine}/stop``); the paho client queues them while
-the broker is away and sends them once it is back.  Every queue here is
-bounded.
+the broker is away and sends them once it is back.  Once the broker has
+acknowledged an alarm, an ``{"alarmed": id}`` line goes into the log; on a
+restart (or a fleet worker's takeover of a machine) the events of the last
+:data:`REALARM_S` seconds without that line -- logged, but killed before the
+broker had their alarm -- are alarmed again, marked ``"republished": true``
+(at least once: an alarm the broker had just taken may come twice, with the
+same id).  Stop requests are not sent again: a late stop could halt a machine
+someone has restarted since.  Every queue here is bounded.
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ __all__ = ["EventLog", "AlarmPublisher", "Webhook", "ArchiveWriter", "STOP_KINDS
 
 #: Event kinds that ask the controller to stop (published on ``{machine}/stop``).
 STOP_KINDS = ("breakage", "collision", "overload", "missing_tool")
+#: Events detected this recently [s] whose alarm the broker never acknowledged are alarmed again on a restart.
+REALARM_S = 600.0
 
 
 class EventLog:
@@ -56,6 +64,7 @@ class EventLog:
         self.recent: deque = deque(maxlen=int(keep))
         self.ids: set[str] = set()
         self.acknowledged: dict[str, dict] = {}
+        self.alarmed: set[str] = set()
         self.seq = 0
         self.recovered = 0
         self._fh = None
@@ -88,19 +97,23 @@ class EventLog:
                                   f"log)") from None
             if isinstance(rec, dict) and "ack" in rec:
                 self.acknowledged[str(rec["ack"])] = rec
+            elif isinstance(rec, dict) and "alarmed" in rec:
+                self.alarmed.add(str(rec["alarmed"]))
             elif isinstance(rec, dict) and isinstance(rec.get("id"), str):
                 self.ids.add(rec["id"])
                 self.seq = max(self.seq, int(rec.get("seq", 0)))
                 self.recent.append(rec)
                 self.recovered += 1
 
-    def _write(self, obj: dict) -> None:
-        if self._fh is None:
-            return
-        self._fh.write(json.dumps(obj, allow_nan=False).encode() + b"\n")     # unbuffered: one write(2)
-        with self._cond:
+    def _write(self, obj: dict) -> bool:
+        line = json.dumps(obj, allow_nan=False).encode() + b"\n"
+        with self._cond:                           # (the alarm thread writes too; never to a closed file)
+            if self._fh is None:
+                return False
+            self._fh.write(line)                   # unbuffered: one write(2)
             self.written += 1
             self._cond.notify_all()
+        return True
 
     def _sync_loop(self) -> None:
         """The syncer thread: fsync whatever was written since the last pass (group commit), until closed."""
@@ -161,9 +174,34 @@ class EventLog:
         record : dict
             Strict-JSON values, with neither ``id`` nor ``ack``.
         """
-        if "id" in record or "ack" in record:
-            raise ValueError("a note has neither 'id' nor 'ack' (those lines are events and acknowledgements)")
+        if "id" in record or "ack" in record or "alarmed" in record:
+            raise ValueError("a note has neither 'id', 'ack' nor 'alarmed' (those lines are events, acknowledgements "
+                             "and delivered alarms)")
         self._write(record)
+
+    def mark_alarmed(self, event_id: str) -> bool:
+        """Record that the broker acknowledged an event's alarm (an ``{"alarmed": id}`` line); False when closed.
+
+        Parameters
+        ----------
+        event_id : str
+            The event's id.
+        """
+        if not self._write({"alarmed": event_id, "at": time.time()}):
+            return False
+        self.alarmed.add(event_id)
+        return True
+
+    def unalarmed(self, within_s: float = REALARM_S) -> list[dict]:
+        """Events detected in the last ``within_s`` seconds whose alarm the broker never acknowledged.
+
+        Parameters
+        ----------
+        within_s : float
+            How far back [s] (by the events' wall-clock ``detected`` time).
+        """
+        since = time.time() - within_s
+        return [r for r in self.recent if r["id"] not in self.alarmed and float(r.get("detected", 0.0)) >= since]
 
     def acknowledge(self, event_id: str, by: str = "") -> dict:
         """Mark an event acknowledged (an ``{"ack": id}`` line in the log).
@@ -241,37 +279,103 @@ class AlarmPublisher:
         self.host, self.port = parse_mqtt_url(url)
         self.prefix = prefix
         self.published = 0
+        self.delivered = 0
         self.connected = False
+        self._lock = threading.Lock()
+        self._pending: dict[int, tuple | None] = {}   # mid -> (event id, logs to mark) of an unacknowledged alarm
+        self._early: set[int] = set()                 # mids acknowledged before publish() filed them
         self._client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False)
         self._client.max_queued_messages_set(10000)
         self._client.reconnect_delay_set(0.2, 2.0)
         self._client.on_connect = lambda c, u, f, reason, p=None: setattr(self, "connected", not reason.is_failure)
         self._client.on_disconnect = lambda c, u, f, reason, p=None: setattr(self, "connected", False)
+        self._client.on_publish = self._on_publish
         self._client.connect_async(self.host, self.port, keepalive=10)
         self._client.loop_start()
 
-    def publish(self, record: dict) -> None:
+    def _on_publish(self, client, userdata, mid, reason_code=None, properties=None) -> None:
+        """The broker acknowledged a message (paho's thread, under paho's lock: never wait on ours there)."""
+        with self._lock:
+            if mid not in self._pending:
+                self._early.add(mid)
+                return
+            entry = self._pending.pop(mid)
+        self._delivered(entry)
+
+    def _delivered(self, entry: tuple | None) -> None:
+        if entry is None:                              # a stop request
+            return
+        event_id, logs = entry
+        for log in logs:
+            log.mark_alarmed(event_id)
+        self.delivered += 1
+
+    def _file(self, mid: int, entry: tuple | None) -> None:
+        with self._lock:
+            early = mid in self._early
+            if early:
+                self._early.discard(mid)
+            else:
+                self._pending[mid] = entry
+        if early:
+            self._delivered(entry)
+
+    def publish(self, record: dict, logs: tuple = ()) -> None:
         """Publish one event on ``{prefix}{machine}/alarm`` (and ``/stop`` for :data:`STOP_KINDS`).
 
         Parameters
         ----------
         record : dict
             The logged event record.
+        logs : tuple of EventLog
+            Logs to mark the alarm delivered in (:meth:`EventLog.mark_alarmed`) once the broker acknowledges it.
         """
         payload = {**record, "published": time.time()}
-        self._client.publish(f"{self.prefix}{record['machine']}/alarm", json.dumps(payload, allow_nan=False),
-                             qos=1)
-        if record["kind"] in STOP_KINDS:
+        info = self._client.publish(f"{self.prefix}{record['machine']}/alarm", json.dumps(payload, allow_nan=False),
+                                    qos=1)
+        self._file(info.mid, (record["id"], tuple(logs)))
+        if record["kind"] in STOP_KINDS and not record.get("republished"):
             stop = {"machine": record["machine"], "event_id": record["id"], "kind": record["kind"],
                     "reason": f"{record['kind']} on axis {record['axis']} at {record['time_s']:.4f} s",
                     "requested": payload["published"]}
-            self._client.publish(f"{self.prefix}{record['machine']}/stop", json.dumps(stop), qos=1)
+            self._file(self._client.publish(f"{self.prefix}{record['machine']}/stop", json.dumps(stop), qos=1).mid,
+                       None)
         self.published += 1
 
-    def close(self) -> None:
-        """Send what is queued (up to 2 s) and disconnect."""
-        deadline = time.time() + 2.0
-        while self._client.want_write() and time.time() < deadline:
+    def republish(self, log: "EventLog") -> int:
+        """Alarm again the recent events of ``log`` whose alarm the broker never acknowledged; how many.
+
+        Parameters
+        ----------
+        log : EventLog
+            A log read back after a restart, or a machine's log a fleet worker took over.
+        """
+        todo = log.unalarmed()
+        for record in todo:
+            self.publish({**record, "republished": True}, (log,))
+        return len(todo)
+
+    def undelivered(self, log: "EventLog | None" = None) -> int:
+        """Alarms the broker has not acknowledged yet (those to be marked in ``log``, if given).
+
+        Parameters
+        ----------
+        log : EventLog, optional
+            Count only the alarms of this log.
+        """
+        with self._lock:
+            return sum(1 for e in self._pending.values() if e is not None and (log is None or log in e[1]))
+
+    def close(self, timeout: float = 2.0) -> None:
+        """Send what is queued and wait for the broker's acknowledgements (up to ``timeout`` [s]), then disconnect.
+
+        Parameters
+        ----------
+        timeout : float
+            Longest wait [s]; an alarm still unacknowledged then is alarmed again at the next start.
+        """
+        deadline = time.time() + timeout
+        while (self._client.want_write() or self.undelivered()) and self.connected and time.time() < deadline:
             time.sleep(0.01)
         self._client.disconnect()
         self._client.loop_stop()

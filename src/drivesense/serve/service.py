@@ -266,6 +266,8 @@ class MonitorService:
         if self.alarm_url:
             self.alarms = AlarmPublisher(self.alarm_url, prefix=self.alarm_prefix, **(
                 {"client_id": f"drivesense-monitor-{self.fleet.group}-{self.fleet.worker}"} if self.fleet else {}))
+            if self.fleet is None:                    # (a fleet worker: each machine's log, when it claims it)
+                self.counts["alarms_republished"] += self.alarms.republish(self.log)
         if self.webhook_url:
             self.webhook = Webhook(self.webhook_url)
         if self.archive_location is not None:
@@ -345,7 +347,7 @@ class MonitorService:
             return
         self.counts[f"events_{record['kind']}"] += 1
         if self.alarms is not None:
-            self.alarms.publish(logged)
+            self.alarms.publish(logged, (self.log,) if m is None or m.claim is None else (self.log, m.claim.log))
         if self.webhook is not None:
             self.webhook.offer(logged)
         for sub in list(self.subscribers):
@@ -506,6 +508,12 @@ class MonitorService:
                [({"kind": k}, self.counts[f"events_{k}"]) for k in kinds])
         metric("alarms_published_total", "counter", "Alarms published to MQTT.",
                [({}, self.alarms.published if self.alarms else 0)])
+        metric("alarms_delivered_total", "counter", "Alarms the broker acknowledged.",
+               [({}, self.alarms.delivered if self.alarms else 0)])
+        metric("alarms_undelivered", "gauge", "Alarms published and not yet acknowledged by the broker.",
+               [({}, self.alarms.undelivered() if self.alarms else 0)])
+        metric("alarms_republished_total", "counter", "Alarms sent again after a restart or a takeover (never "
+               "acknowledged before).", [({}, self.counts["alarms_republished"])])
         metric("event_log_sync_errors_total", "counter", "fsyncs of the event log that failed (disk trouble).",
                [({}, self.log.sync_errors)])
         metric("webhook_failures_total", "counter", "Webhook posts that failed.",
