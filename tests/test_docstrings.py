@@ -10,7 +10,8 @@ A parameter counts as documented when its name has an entry in the
 "Parameters" (or "Other Parameters") section; a class's constructor
 parameters may also be documented in the class's "Attributes" section
 (dataclasses) or in the docstring of the drivesense class whose ``__init__`` it
-inherits.  ``self``/``cls``, ``_private`` parameters and ``*args``/``**kwargs``
+inherits, and a dataclass's field in the docstring of the drivesense dataclass
+that declares it (a subclass need not repeat its base's parameter list).  ``self``/``cls``, ``_private`` parameters and ``*args``/``**kwargs``
 need no entry.
 
 The second test asks numeric parameters for a unit: an entry whose type says
@@ -132,6 +133,8 @@ def _constructor_docs(cls) -> list[str]:
                 if init is not None:
                     docs.append(inspect.getdoc(init) or "")
             break
+    if dataclasses.is_dataclass(cls):             # inherited fields: documented where they are declared
+        docs += [inspect.getdoc(b) or "" for b in inspect.getmro(cls)[1:] if _own(b) and dataclasses.is_dataclass(b)]
     return docs
 
 

@@ -153,8 +153,6 @@ class EstimateJob(BatchJob):
 
     Parameters
     ----------
-    reader : dict, optional
-        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     method : str
         ``--method``.
     axis_file, axes_file, model_dir : Path, optional
@@ -262,20 +260,10 @@ def _score(est, rec, force) -> dict | None:
 class DetectJob(EstimateJob):
     """Events in each trace (``drivesense detect``'s estimator, detectors and options).
 
+    Takes :class:`EstimateJob`'s parameters (the estimator: ``method``, ``axis_file``, ``idle`` ...) and:
+
     Parameters
     ----------
-    reader : dict, optional
-        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
-    method : str
-        ``--method``.
-    axis_file, axes_file, model_dir : Path, optional
-        ``--axis``, ``--axes``, ``--model``.
-    idle : list of Path
-        ``--idle`` runs (friction map, fitted once on the client, in this order).
-    tare : tuple of float, optional
-        ``--tare START:END`` [s] (applied to each trace).
-    axis_name : str
-        ``--axis-name``.
     teeth : int, optional
         ``--teeth`` (default: the trace's tool).
     spindle_rpm : float, optional
@@ -337,8 +325,6 @@ class WearJob(BatchJob):
 
     Parameters
     ----------
-    reader : dict, optional
-        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     diameter : float, optional
         Tool diameter [m] when the table has none (``--diameter`` is in mm at the CLI).
     flutes : int, optional
@@ -379,8 +365,6 @@ class IdentifyJob(BatchJob):
 
     Parameters
     ----------
-    reader : dict, optional
-        How CSV traces are read: ``fs``, ``resample``, ``assume_si``, ``bad_samples`` (``--fs`` ...).
     fix : dict
         ``--fix``: K_t [N*m/A] and lead [m] required, any fit parameter or T_a, omega_cc optional.
     fmin, fmax : float
