@@ -493,7 +493,7 @@ class MonitorService:
         metric("gaps_total", "counter", "Chunks missing from a machine's sequence.",
                [({"machine": m.id}, m.monitor.gaps) for m in ms])
         metric("publisher_restarts_total", "counter",
-               "New runs of a machine's publisher (a new session, or seq 0 again).",
+               "New runs of a machine's publisher (a new session in its chunks).",
                [({"machine": m.id}, m.monitor.restarts) for m in ms])
         metric("queue_depth", "gauge", "Chunks waiting per machine.",
                [({"machine": m.id}, m.queue.qsize() if m.queue is not None else 0) for m in ms])
