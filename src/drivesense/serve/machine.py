@@ -179,7 +179,7 @@ class MachineMonitor:
 
     @property
     def restarts(self) -> int:
-        """Times the publisher started a new run (a new session, or ``seq`` 0 again) while this machine ran."""
+        """Times the publisher started a new run (a new session in its chunks) while this machine ran."""
         return self.cursor.restarts
 
     # ------------------------------------------------------------------ checks
