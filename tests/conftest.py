@@ -13,6 +13,7 @@ out as tuples.  A test that needs different settings or seeds builds its own.
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 
 import pytest
@@ -23,6 +24,36 @@ from drivesense.recording import Recording
 FEED = "feed_r6_S1000"
 #: The cross-feed condition the estimator tests use (r = 6 mm, 4000 rpm).
 CROSS = "cross_r6_S4000"
+
+
+def _skipped(session) -> list:
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    return list(reporter.stats.get("skipped", [])) if reporter is not None else []
+
+
+def _skip_reason(report) -> str:
+    longrepr = report.longrepr
+    reason = longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else str(longrepr)
+    return f"{report.nodeid}: {reason.removeprefix('Skipped: ')}"
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Under ``CI=true`` nothing may skip: a missing browser, broker, database or package fails the run.
+
+    Each test that needs one skips elsewhere (a developer's machine without PostgreSQL); in CI, where
+    ``scripts/test`` installs and starts all of them, a skip can only mean a forgotten install step.
+    """
+    if os.environ.get("CI") == "true" and _skipped(session) and session.exitstatus == 0:
+        session.exitstatus = 1
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """Say why a run under ``CI=true`` failed on skips."""
+    skipped = list(terminalreporter.stats.get("skipped", []))
+    if os.environ.get("CI") == "true" and skipped:
+        reasons = "; ".join(_skip_reason(r) for r in skipped[:10])
+        terminalreporter.write_line(f"CI=true: {len(skipped)} test(s) skipped, and under CI nothing may skip: "
+                                    f"{reasons}", red=True, bold=True)
 
 
 @dataclass(frozen=True)

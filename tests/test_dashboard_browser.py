@@ -87,7 +87,7 @@ def _get_json(url: str):
 class LiveService:
     """The demo service and its HTTP server in a background thread with its own loop."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, websocket: bool = True) -> None:
         from drivesense.serve.demo import demo_machine
         from drivesense.serve.service import MonitorService
 
@@ -101,6 +101,7 @@ class LiveService:
         self.error: BaseException | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
         self.stop_event: asyncio.Event | None = None
+        self.websocket = websocket
         process = self.spec.monitor.process
 
         def timed_process(chunk):                    # a late chunk only shows a later offset: keep the least
@@ -118,13 +119,30 @@ class LiveService:
             self.loop = asyncio.get_running_loop()
             self.stop_event = asyncio.Event()
             self.start_wall = time.time()
-            await asyncio.gather(self.service.run(self.stop_event),
-                                 serve_http(self.service, "127.0.0.1", self.port, self.stop_event))
+            if self.websocket:
+                server = serve_http(self.service, "127.0.0.1", self.port, self.stop_event)
+            else:
+                server = self._serve_without_websocket()
+            await asyncio.gather(self.service.run(self.stop_event), server)
 
         try:
             asyncio.run(main())
         except BaseException as exc:  # noqa: BLE001 - reported by the test
             self.error = exc
+
+    async def _serve_without_websocket(self) -> None:
+        """uvicorn as it runs where no WebSocket library is installed (``ws="none"``: /ws answers 404)."""
+        import uvicorn
+
+        from drivesense.serve.web import create_app
+
+        server = uvicorn.Server(uvicorn.Config(create_app(self.service), host="127.0.0.1", port=self.port,
+                                               ws="none", log_level="warning", lifespan="off"))
+        server.install_signal_handlers = lambda: None       # noqa: E731 - (older uvicorn) the loop is ours
+        task = asyncio.ensure_future(server.serve())
+        await self.stop_event.wait()
+        server.should_exit = True
+        await task
 
     def start(self) -> None:
         self.thread.start()
@@ -149,13 +167,13 @@ class LiveService:
             self.thread.join(20)
 
 
-@pytest.fixture
-def live():
+@pytest.fixture(params=[True], ids=["websocket"])
+def live(request):
     try:
         import playwright.sync_api  # noqa: F401
     except ImportError:
         _unavailable("Playwright (Python) is not installed")
-    svc = LiveService()                    # started by the test once the browser is up
+    svc = LiveService(websocket=request.param)             # started by the test once the browser is up
     try:
         yield svc
     finally:
@@ -194,8 +212,8 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
             page.goto(live.url + "/", wait_until="domcontentloaded")
             assert page.title() == "drivesense monitor"
 
-            canvas = page.wait_for_selector("#force-demo-x", timeout=15000)
-            page.wait_for_function("document.getElementById('force-demo-x').dataset.updates > 0", timeout=15000)
+            canvas = page.wait_for_selector("#force-demo-x", timeout=60000)
+            page.wait_for_function("document.getElementById('force-demo-x').dataset.updates > 0", timeout=60000)
             before = int(canvas.get_attribute("data-updates"))
             page.wait_for_timeout(1000)
             after = int(canvas.get_attribute("data-updates"))
@@ -231,6 +249,9 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
             assert "sev-red" in (row.get_attribute("class") or "")
             assert row.get_attribute("data-id") == brk["id"]
             assert not page.is_hidden("#alarm") and "breakage" in page.text_content("#alarm-kind").lower()
+            badge = "#machine-demo .badge"                   # the machine's badge turns red with its card
+            page.wait_for_function(f"document.querySelector('{badge}').textContent === 'alarm'", timeout=5000)
+            assert "state-alarm" in page.get_attribute(badge, "class")
 
             page.wait_for_timeout(900)                       # let the spectrum and the trace show the breakage
             page.wait_for_function("document.querySelectorAll('#stats-demo tr').length >= 2", timeout=5000)
@@ -248,6 +269,7 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
             page.wait_for_selector("#alarm", state="hidden", timeout=5000)
             page.wait_for_selector(f'#events tr[data-id="{brk["id"]}"].acked', timeout=5000)
             assert next(e for e in _get_json(live.url + "/api/events") if e["id"] == brk["id"])["acknowledged"]
+            assert page.text_content(badge) != "alarm"        # acknowledged: the source's state again
             assert not problems, problems
             assert not foreign, f"the page fetched outside the service: {foreign}"
         finally:
@@ -255,3 +277,30 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
     deadline = time.time() + 5                          # the WebSocket's subscriber leaves with the browser
     while live.service.subscribers and time.time() < deadline:
         time.sleep(0.05)
+
+
+@pytest.mark.parametrize("live", [False], ids=["no-websocket"], indirect=True)
+def test_dashboard_without_a_websocket_polls_and_still_shows_the_machine_and_the_breakage(live):
+    """A server without a WebSocket library (a proxy that drops WebSockets): the page says so and polls."""
+    from playwright.sync_api import Error as PlaywrightError
+    from playwright.sync_api import sync_playwright
+
+    chromium = _chromium()
+    with sync_playwright() as p:
+        try:
+            browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS, headless=True)
+        except PlaywrightError as exc:
+            _unavailable(f"Chromium at {chromium} does not start under Playwright: {exc}")
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            live.start()
+            page.goto(live.url + "/", wait_until="domcontentloaded")
+            page.wait_for_selector("#machine-demo", timeout=15000)            # the card, from /api/machines
+            page.wait_for_function("document.getElementById('conn').textContent.indexOf('polling') >= 0",
+                                   timeout=15000)
+            page.wait_for_selector('#events [data-kind="breakage"]', timeout=30000)
+            assert page.is_hidden("#no-events")
+            assert page.text_content("#machine-demo .badge") == "alarm"
+            assert not page.is_hidden("#alarm")
+        finally:
+            browser.close()

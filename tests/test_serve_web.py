@@ -245,7 +245,7 @@ def test_serve_http_runs_beside_the_service_and_stops_with_clients_connected():
         frame = strict(await asyncio.wait_for(ws.recv(), 10))
         assert hello["type"] == "hello" and frame["type"] == "frame" and "demo" in frame["machines"]
         assert set(frame["machines"]["demo"]["force"]) == {"t", "force_x"}
-        with pytest.raises(ConfigError, match="--host/--port"):        # the port is taken: named, and it stops
+        with pytest.raises(ConfigError, match="--http 127.0.0.1:.*cannot listen"):        # the port is taken: named, and it stops
             await serve_http(svc, "127.0.0.1", port, asyncio.Event())
         began = time.monotonic()
         stop.set()                                                      # a client is still connected

@@ -13,6 +13,7 @@ __all__ = [
     "InvalidSignalError",
     "TimebaseError",
     "SignalTooShortError",
+    "SampleRateError",
     "ImplausibleSampleError",
     "MissingChannelError",
     "UnitError",
@@ -37,6 +38,10 @@ class TimebaseError(InvalidSignalError):
 
 class SignalTooShortError(InvalidSignalError):
     """A trace is shorter than the filters or the method need."""
+
+
+class SampleRateError(InvalidSignalError):
+    """A trace's sample rate cannot resolve what a method models (a mode above the Nyquist frequency)."""
 
 
 class ImplausibleSampleError(InvalidSignalError):

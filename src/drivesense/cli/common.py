@@ -15,11 +15,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
-           "read_trace", "trace_reader", "build_estimator", "save_recording", "show_warnings", "AssumeSiOpt",
+           "read_trace", "trace_reader", "build_estimator", "save_recording", "check_recording_suffix", "show_warnings", "AssumeSiOpt",
            "FsOpt", "ResampleOpt", "BadSamplesOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
 
-console = Console()
-err_console = Console(stderr=True)
+console = Console(emoji=False)          # user text such as "--tare START:END" is never an emoji code
+err_console = Console(stderr=True, emoji=False)
 
 
 #: Parameter names of the commands' output options (files, or a folder the command creates) -> the option.
@@ -185,16 +185,26 @@ def build_estimator(method: str, *, axis_file: Optional[Path] = None, axes_file:
                            axis_name=axis_name)
 
 
+def check_recording_suffix(out: Path, option: str = "--out") -> None:
+    """Refuse an output recording whose suffix names no format drivesense writes (before any work is done).
+
+    The format follows the suffix: ``.nc`` (netCDF, lossless) or ``.csv``; anything else is a ConfigError
+    naming `option`, never a file of one format under another's name.
+    """
+    from drivesense.errors import ConfigError
+
+    if Path(out).suffix.lower() not in (".nc", ".csv"):
+        raise ConfigError(f"{option} '{out}': the format follows the suffix: use .nc (netCDF, lossless) or .csv")
+
+
 def save_recording(rec, out: Path, *, parents: bool = False) -> None:
     """Write a recording command's ``--out``: ``.nc`` (lossless) or ``.csv``, atomically.
 
     With ``parents`` the folder of `out` is created (after the suffix is checked).
     """
-    from drivesense.errors import ConfigError
     from drivesense.io import write_recording
 
-    if Path(out).suffix.lower() not in (".nc", ".csv"):
-        raise ConfigError(f"output '{out}': use a .nc (netCDF, lossless) or .csv suffix")
+    check_recording_suffix(out)
     if parents:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
     write_recording(rec, out)

@@ -11,8 +11,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator,
-                                   console, friendly, parse_window, progress_bar, save_recording, trace_reader, warn,
-                                   write_json)
+                                   check_recording_suffix, console, friendly, parse_window, progress_bar,
+                                   save_recording, trace_reader, warn, write_json)
 
 __all__ = ["register"]
 
@@ -163,7 +163,8 @@ _NO_COMPENSATION = ("no friction compensation (neither --idle nor --tare): frict
 @friendly
 def estimate(
     trace: Annotated[Path, typer.Argument(help="CSV (name [unit] header) or .nc Recording.")],
-    out: Annotated[Path, typer.Option("--out", help="Output CSV: time [s], force_x [N] (model: force_x/y/z).")],
+    out: Annotated[Path, typer.Option("--out", help="Output .csv (time [s], force_x [N]; model: force_x/y/z) or "
+                                                    ".nc (netCDF, lossless): the format follows the suffix.")],
     axis_file: Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")] = None,
     method: Annotated[str, typer.Option(help="current | rigid | medob | vibration (--axis); model (--axes); "
                                               "lstm | hybrid (--model)")] = "vibration",
@@ -186,8 +187,8 @@ def estimate(
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
     from drivesense.estimate.design import lowpass_sos
-    from drivesense.io import write_csv
 
+    check_recording_suffix(out)
     read_trace = trace_reader(fs, resample, assume_si, bad_samples)
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
@@ -223,7 +224,7 @@ def estimate(
         info["warnings"].append(_NO_COMPENSATION)
         warn(_NO_COMPENSATION)
     force = est.estimate(rec)
-    write_csv(force, out)
+    save_recording(force, out)
     f = force[est.output_channel]
     info.update({"latency_s": force.meta["latency_s"], "sign": force.meta["sign"], "output": str(out),
                  "force_n": {"mean": float(f.mean()), "min": float(f.min()), "max": float(f.max()),

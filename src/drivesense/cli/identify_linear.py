@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, read_trace,
-                                   show_warnings, trace_reader, write_json)
+                                   save_recording, show_warnings, trace_reader, write_json)
 
 __all__ = ["register", "parse_motor_constants", "estimate_model"]
 
@@ -109,12 +109,11 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     ``est`` is a ModelBased, LSTM or Hybrid estimator (anything with ``name``
     and ``estimate(recording)`` returning ``force_x/y/z``).
     """
-    from drivesense.io import write_csv
     from drivesense.score import score_estimate
 
     rec = read(trace)
     force = est.estimate(rec)
-    write_csv(force, out)
+    save_recording(force, out)
     info: dict = {"method": est.name, "trace": str(trace), "fs": rec.fs, "samples": rec.n_samples,
                   "latency_s": force.meta["latency_s"], "sign": force.meta["sign"], "output": str(out),
                   "force_n": {}, "score_vs_reference": {}, "warnings": []}

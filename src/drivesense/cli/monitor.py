@@ -41,7 +41,7 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
     from drivesense.monitor.pipeline import tool_teeth
     from drivesense.serve.config import MonitorConfig, build_axis
     from drivesense.serve.machine import MachineMonitor
-    from drivesense.serve.service import MachineSpec
+    from drivesense.serve.service import MachineSpec, machine_id_from
     from drivesense.serve.sources import ReplaySource
 
     rec = read(trace, axis_name)
@@ -51,11 +51,20 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
     spec = {"method": method, "axis_file": axis_file and str(axis_file), "axes_file": axes_file and str(axes_file),
             "model": model_dir and str(model_dir), "idle": [str(p) for p in idle or []] or None, "tare": tare,
             "limits": limits and str(limits), "force_limit": force_limit, "baseline_revs": baseline_revs}
-    machine = trace.stem
+    machine = machine_id_from(trace.stem)
     axis = build_axis(axis_name, {k: v for k, v in spec.items() if v is not None}, base=Path.cwd(), read=read,
                       where="--replay", teeth=teeth, spindle_rpm=spindle_rpm, tare_trace=rec, labels={})
     source = ReplaySource(machine, rec, speed=speed)
     return MonitorConfig([MachineSpec(machine, source, MachineMonitor(machine, [axis]))])
+
+
+def _listen(http: tuple[str, int]):
+    """The dashboard's socket, bound now (the monitor extra checked first): see ``serve.web.listen_socket``."""
+    for module in ("fastapi", "uvicorn", "websockets"):     # websockets: uvicorn serves the live stream (/ws)
+        _need(module)
+    from drivesense.serve.web import listen_socket
+
+    return listen_socket(*http)
 
 
 def _config_names_events(path: Path) -> bool:
@@ -68,7 +77,13 @@ def _config_names_events(path: Path) -> bool:
         return False
 
 
-async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, duration: Optional[float]) -> None:
+async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, duration: Optional[float],
+               sock=None) -> None:
+    """Run the service (and the dashboard on `sock`) until it finishes, ``stop`` is set or `duration` ends.
+
+    The first error of any part (the service, the HTTP server) is raised once everything has stopped, so
+    that the command reports it (exit 2) instead of ending with a summary of nothing.
+    """
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
@@ -79,7 +94,7 @@ async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, dura
     if http is not None:
         from drivesense.serve.web import serve_http
 
-        tasks.append(asyncio.create_task(serve_http(service, http[0], http[1], stop)))
+        tasks.append(asyncio.create_task(serve_http(service, http[0], http[1], stop, sock=sock)))
     if duration is not None:
         async def timer() -> None:
             try:
@@ -87,12 +102,12 @@ async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, dura
             except asyncio.TimeoutError:
                 stop.set()
         tasks.append(asyncio.create_task(timer()))
-    done, _ = await asyncio.wait(tasks[:1])
+    await asyncio.wait(tasks[:1])
     stop.set()
-    await asyncio.gather(*tasks, return_exceptions=True)
-    for t in done:
-        if t.exception() is not None:
-            raise t.exception()
+    results = await asyncio.gather(*tasks, return_exceptions=True)
+    for result in results:
+        if isinstance(result, BaseException) and not isinstance(result, asyncio.CancelledError):
+            raise result
 
 
 def _print_event(record: dict) -> None:
@@ -157,6 +172,7 @@ def register(app: typer.Typer) -> None:
         """Watch machines live: estimate forces, detect events, raise alarms, serve a dashboard."""
         from drivesense.errors import ConfigError
         from drivesense.serve.config import MonitorConfig, load_config, parse_http
+        from drivesense.serve.sources import check_speed
 
         given = [name for name, v in (("CONFIG", config), ("--replay", replay), ("--demo", demo)) if v]
         if len(given) != 1:
@@ -164,12 +180,17 @@ def register(app: typer.Typer) -> None:
                               + (f" (got {', '.join(given)})" if given else ""))
         if duration is not None and not duration > 0:
             raise ConfigError(f"--duration must be > 0 [s], got {duration!r}")
+        check_speed(speed, "--speed")
         check_detector_options(baseline_revs=baseline_revs)
         if worker is None and fleet != "main":
             raise ConfigError(f"--fleet {fleet} names the fleet a worker joins: give --worker NAME too")
         if worker is not None and events is None and not (config is not None and _config_names_events(config)):
             raise ConfigError("--worker needs --events FOLDER (or [service] events): the folder the workers share, "
                               "with each machine's event log and claim")
+        sock, address = None, None
+        if http is not None or demo:                 # bound before any work: a port in use is an error at once
+            address = parse_http(http or "127.0.0.1:8765")
+            sock = _listen(address)
         if config is not None:
             cfg = load_config(config, read=trace_reader(fs, resample, assume_si, bad_samples))
         elif replay is not None:
@@ -181,9 +202,12 @@ def register(app: typer.Typer) -> None:
             from drivesense.serve.demo import demo_machine
 
             console.print("simulating the demo machine (ball-screw stage, 2-flute end mill, 6000 min^-1) ...")
-            cfg = MonitorConfig([demo_machine(speed=speed)], http=parse_http(http or "127.0.0.1:8765"))
-        if http is not None:
-            cfg.http = parse_http(http)
+            cfg = MonitorConfig([demo_machine(speed=speed)])
+        if sock is None and cfg.http is not None:    # the config file's [service] http
+            address = cfg.http
+            sock = _listen(address)
+        if sock is not None:
+            cfg.http = (address[0], sock.getsockname()[1])     # (port 0: the one the system chose)
         for attr, value in (("events", events), ("archive", archive), ("mqtt", mqtt), ("webhook", webhook)):
             if value is not None:
                 setattr(cfg, attr, value)
@@ -191,10 +215,6 @@ def register(app: typer.Typer) -> None:
             from drivesense.serve.fleet import FleetWorker
 
             cfg.fleet = FleetWorker(worker, cfg.events, group=fleet, hold_s=hold)
-        if cfg.http is not None:
-            _need("fastapi")
-            _need("uvicorn")
-            import drivesense.serve.web  # noqa: F401  (imported now, not inside the running loop)
         if cfg.mqtt is not None or any(m.source.kind == "mqtt" for m in cfg.machines):
             _need("paho")
         service = cfg.service()
@@ -219,7 +239,7 @@ def register(app: typer.Typer) -> None:
         gc.collect()
         gc.freeze()
         began = time.time()
-        asyncio.run(_run(service, cfg.http, asyncio.Event(), until_finished=finite, duration=duration))
+        asyncio.run(_run(service, cfg.http, asyncio.Event(), until_finished=finite, duration=duration, sock=sock))
         wall = time.time() - began
         table = Table(title="monitor summary")
         for col in ("machine", "samples", "chunks", "rejected", "gaps", "busy [s]", "events"):
@@ -258,12 +278,15 @@ def register(app: typer.Typer) -> None:
         """Publish a trace to an MQTT broker in drivesense's chunk format (an edge device, or a test feed)."""
         from drivesense.errors import ConfigError
         from drivesense.serve.publisher import publish_recording
+        from drivesense.serve.service import check_machine_id, machine_id_from
+        from drivesense.serve.sources import check_speed
 
         _need("paho")
         if not chunk_ms > 0:
             raise ConfigError(f"--chunk-ms must be > 0, got {chunk_ms!r}")
+        check_speed(speed, "--speed")
+        mid = check_machine_id(machine, "--machine") if machine is not None else machine_id_from(trace.stem)
         rec = trace_reader(fs, resample, assume_si, bad_samples)(trace, axis_name)
-        mid = machine or trace.stem
         report = publish_recording(rec, mqtt, machine=mid, topic=topic, speed=speed, chunk_s=chunk_ms * 1e-3,
                                    repeat=repeat)
         console.print(f"published {report['chunks']} chunk(s), {report['samples']} samples of machine {mid} to "

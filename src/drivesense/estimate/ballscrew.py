@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from drivesense.errors import CoverageError, SignalTooShortError
+from drivesense.errors import CoverageError, SampleRateError, SignalTooShortError
 from drivesense.estimate.base import ForceEstimator
 from drivesense.estimate.design import ForceCombination, ObserverDesign, discretise
 from drivesense.estimate.friction_map import build_friction_map
@@ -50,6 +50,9 @@ class BallScrewEstimator(ForceEstimator):
     drive = "ballscrew"
     #: Discretisation of the derivatives (``"central"`` or ``"bilinear"``).
     discretisation = "central"
+    #: Whether the method's equation holds the ball screw's vibration mode (motor minus table motion): then
+    #: a trace must resolve the mode, i.e. its natural frequency must lie below the Nyquist frequency.
+    models_vibration_mode = False
 
     def __init__(self, axis: BallScrewAxis, signal: SignalParams | None = None, *, axis_name: str = "x") -> None:
         self.axis = axis
@@ -60,6 +63,32 @@ class BallScrewEstimator(ForceEstimator):
         self._designs: dict[float, ObserverDesign] = {}
 
     # ----------------------------------------------------------------- design
+    def check_rate(self, fs: float) -> None:
+        """Refuse a sample rate that cannot resolve what the method models.
+
+        A method that models the vibration mode (:attr:`models_vibration_mode`) needs the mode's natural
+        frequency below the Nyquist frequency: sampled slower, the mode aliases into the band and the
+        estimate is wrong, even in sign.  The low-pass cut-off must lie below Nyquist as well.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+
+        Raises
+        ------
+        SampleRateError
+            Naming the method, the mode's frequency, the rate it needs and the methods that work at `fs`.
+        """
+        f_mode = self.axis.natural_frequency_hz
+        if self.models_vibration_mode and f_mode >= 0.5 * fs:
+            raise SampleRateError(
+                f"--method {self.name} models the ball screw's vibration mode at {f_mode:.0f} Hz, which a "
+                f"{fs:g} Hz trace cannot resolve (Nyquist {0.5 * fs:g} Hz; it needs > {2 * f_mode:.0f} Hz): for a "
+                f"controller trace at this rate identify the axes with 'drivesense identify nc' and estimate with "
+                f"--method model, or use --method current or rigid")
+        self.signal.check_rate(fs)
+
     def combination(self) -> ForceCombination:
         """The estimating equation (each method defines it)."""
         raise NotImplementedError
@@ -73,6 +102,7 @@ class BallScrewEstimator(ForceEstimator):
             Sample rate [Hz].
         """
         if fs not in self._designs:
+            self.check_rate(fs)
             self._designs[fs] = discretise(self.combination(), self.axis, self.signal, fs, self.discretisation)
         return self._designs[fs]
 

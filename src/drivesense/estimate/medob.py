@@ -24,6 +24,7 @@ class MEDOB(BallScrewEstimator):
     """
 
     name = "medob"
+    models_vibration_mode = True
     discretisation = "bilinear"
 
     def combination(self) -> ForceCombination:

@@ -21,6 +21,7 @@ class VibrationMode(BallScrewEstimator):
     """
 
     name = "vibration"
+    models_vibration_mode = True
 
     def combination(self) -> ForceCombination:
         """Eq. 6 in (x_m, x_t) coordinates, ``force_x = -F_cut``."""

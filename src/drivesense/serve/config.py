@@ -44,7 +44,7 @@ from typing import Any
 
 from drivesense.errors import ConfigError
 from drivesense.serve.machine import AxisPipeline, MachineMonitor
-from drivesense.serve.service import MachineSpec, MonitorService
+from drivesense.serve.service import MachineSpec, MonitorService, check_machine_id
 from drivesense.serve.mqtt import MQTTSource
 from drivesense.serve.sources import ReplaySource, SimulatedSource, Source
 
@@ -59,7 +59,8 @@ _KEYS = {"machine": {"id", "teeth", "spindle_rpm", "source", "axis", "history_s"
                   "force_limit", "limits", "baseline_revs"},
          "replay": {"kind", "path", "speed", "loop", "chunk_s", "axis_name"},
          "simulated": {"kind", "seed", "speed", "cut_s", "event_share"},
-         "mqtt": {"kind", "url", "topic"}}
+         "mqtt": {"kind", "url", "topic"},
+         "service": {"http", "events", "archive", "mqtt", "webhook", "token", "token_env", "alarm_prefix"}}
 
 
 #: What messages call the method options in a config file.
@@ -317,7 +318,7 @@ def _source(machine: str, spec: Any, base: Path, read: Callable, where: str) -> 
 def _machine(spec: Any, base: Path, read: Callable) -> MachineSpec:
     if not isinstance(spec, dict) or not isinstance(spec.get("id"), str) or not spec["id"]:
         raise ConfigError("every [[machine]] needs an 'id' (a string)")
-    mid = spec["id"]
+    mid = check_machine_id(spec["id"], "[[machine]] id")
     where = f"machine '{mid}'"
     _known(spec, "machine", where)
     teeth = _get(spec, "teeth", int, where, need="an integer >= 1", check=lambda v: v >= 1)
@@ -376,10 +377,7 @@ def load_config(path: str | Path, *, read: Callable | None = None,
     if not isinstance(svc, dict):
         raise ConfigError(f"{path}: [service] must be a table")
     where = f"{path} [service]"
-    unknown = sorted(set(svc) - {"http", "events", "archive", "mqtt", "webhook", "token", "token_env",
-                                 "alarm_prefix"})
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}")
+    _known(svc, "service", where)
     token = _get(svc, "token", str, where, need="a string")
     env = _get(svc, "token_env", str, where, need="an environment variable name")
     if env:

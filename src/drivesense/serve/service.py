@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import re
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -32,12 +33,61 @@ from drivesense.serve.machine import MachineMonitor
 from drivesense.serve.outputs import AlarmPublisher, ArchiveWriter, EventLog, Webhook
 from drivesense.serve.sources import Source
 
-__all__ = ["MachineSpec", "MonitorService", "Subscriber"]
+__all__ = ["MachineSpec", "MonitorService", "Subscriber", "check_machine_id", "machine_id_from", "MACHINE_ID_RULE"]
 
 #: Chunks queued per machine before its source waits.
 QUEUE_CHUNKS = 64
 #: Dashboard frame period [s].
 FRAME_PERIOD_S = 0.2
+
+
+#: What a machine id may be: it is a path segment of the API (``/api/machines/<id>/force``), a part of every
+#: event id (``machine/detector/axis/...``), of MQTT topics and of log file names.
+MACHINE_ID_RULE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def check_machine_id(machine: Any, where: str = "machine id") -> str:
+    """Refuse a machine id that would break a route, an event id, a topic or a file name.
+
+    Parameters
+    ----------
+    machine : str
+        The id: 1-64 characters, letters, digits, ``_``, ``.`` and ``-``, starting with a letter or digit.
+    where : str
+        How the message names it (``machine id``, ``--machine``).
+
+    Returns
+    -------
+    str
+        The id.
+
+    Raises
+    ------
+    ConfigError
+        Naming the id and the rule.
+    """
+    if not isinstance(machine, str) or MACHINE_ID_RULE.fullmatch(machine) is None:
+        raise ConfigError(f"{where} {machine!r}: use 1-64 letters, digits, '_', '.' or '-', starting with a letter "
+                          f"or digit (it is part of URLs, event ids, MQTT topics and file names)")
+    return machine
+
+
+def machine_id_from(name: str) -> str:
+    """A valid machine id made from a file name (``--replay 'cut 1.csv'`` -> ``cut_1``).
+
+    Parameters
+    ----------
+    name : str
+        The name (a trace's stem).
+
+    Returns
+    -------
+    str
+        Every character outside the rule of :func:`check_machine_id` replaced by ``_``, cut to 64 characters
+        (``machine`` when nothing is left).
+    """
+    cleaned = re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip("_.-")[:64]
+    return cleaned or "machine"
 
 
 @dataclass
@@ -79,6 +129,9 @@ class MachineSpec:
     tasks: list = field(default_factory=list)
     claim: Any = None
     stop: Any = None
+
+    def __post_init__(self) -> None:
+        check_machine_id(self.id)
 
 
 class Subscriber:

@@ -29,7 +29,7 @@ from drivesense.errors import ConfigError
 from drivesense.recording import Recording
 from drivesense.serve.wire import Chunk
 
-__all__ = ["Source", "ReplaySource", "SimulatedSource", "Put", "DEMO_FEED", "demo_condition"]
+__all__ = ["Source", "ReplaySource", "SimulatedSource", "Put", "DEMO_FEED", "demo_condition", "check_speed"]
 
 #: What a source hands each chunk (or unreadable message) to.
 Put = Callable[[Any], Awaitable[None]]
@@ -78,6 +78,32 @@ async def _pace(loop: asyncio.AbstractEventLoop, start: float, due_s: float, sto
             pass
 
 
+def check_speed(speed: float, option: str = "source speed") -> float:
+    """Refuse a replay/publishing rate that is negative or not finite (0 means as fast as possible).
+
+    Parameters
+    ----------
+    speed : float
+        The rate [-]: 1 real time, 50 fifty times faster, 0 as fast as possible.
+    option : str
+        How the message names it (``--speed``, ``source speed``).
+
+    Returns
+    -------
+    float
+        The rate.
+
+    Raises
+    ------
+    ConfigError
+        Naming `option` and the value.
+    """
+    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed >= 0):
+        raise ConfigError(f"{option} must be >= 0 (1: real time, 50: fifty times faster, 0: as fast as possible), "
+                          f"got {speed!r}")
+    return float(speed)
+
+
 class ReplaySource(Source):
     """A recording played as a live stream, in real time or ``speed`` times faster.
 
@@ -100,8 +126,7 @@ class ReplaySource(Source):
     def __init__(self, machine: str, recording: Recording, *, speed: float = 1.0, chunk_s: float = 0.05,
                  loop: int = 1) -> None:
         super().__init__(machine)
-        if not (math.isfinite(speed) and speed >= 0):
-            raise ConfigError(f"--speed must be >= 0 (0: as fast as possible), got {speed!r}")
+        check_speed(speed)
         if not (math.isfinite(chunk_s) and chunk_s > 0):
             raise ConfigError(f"source chunk_s must be > 0 [s], got {chunk_s!r}")
         if int(loop) < 1:
@@ -190,6 +215,7 @@ class SimulatedSource(Source):
     def __init__(self, machine: str, *, seed: int = 1, speed: float = 1.0, cut_s: float = 4.0,
                  event_share: float = 0.3, chunk_s: float = 0.05, first_event: str | None = "breakage") -> None:
         super().__init__(machine)
+        check_speed(speed)
         self.seed = int(seed)
         self.speed = float(speed)
         self.cut_s = float(cut_s)

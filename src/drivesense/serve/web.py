@@ -42,7 +42,7 @@ from fastapi.responses import JSONResponse, Response
 
 from drivesense.errors import ConfigError
 
-__all__ = ["create_app", "serve_http", "STATIC_FILES"]
+__all__ = ["create_app", "serve_http", "listen_socket", "STATIC_FILES"]
 
 #: Packaged dashboard files and their media types.
 STATIC_FILES = {"index.html": "text/html; charset=utf-8", "dashboard.js": "text/javascript; charset=utf-8",
@@ -293,11 +293,30 @@ class _Server(uvicorn.Server):
         yield
 
 
-def _listen(host: str, port: int) -> socket.socket:
+def listen_socket(host: str, port: int) -> socket.socket:
+    """Bind the dashboard's listening socket now, so that a port in use is an error before anything runs.
+
+    Parameters
+    ----------
+    host : str
+        Address to listen on.
+    port : int
+        TCP port (0: any free one: read it from ``sock.getsockname()``).
+
+    Returns
+    -------
+    socket.socket
+        The bound socket, for :func:`serve_http`'s ``sock``.
+
+    Raises
+    ------
+    ConfigError
+        The host does not resolve, or the address cannot be bound (in use, not this machine's), naming ``--http``.
+    """
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except socket.gaierror as exc:
-        raise ConfigError(f"--host {host!r}: cannot resolve ({exc.strerror})") from None
+        raise ConfigError(f"--http {host}:{port}: cannot resolve host {host!r} ({exc.strerror})") from None
     family, kind, proto, _, address = infos[0]
     sock = socket.socket(family, kind, proto)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -305,12 +324,13 @@ def _listen(host: str, port: int) -> socket.socket:
         sock.bind(address)
     except OSError as exc:
         sock.close()
-        raise ConfigError(f"cannot listen on {host}:{port} (--host/--port): {exc.strerror}") from None
+        raise ConfigError(f"--http {host}:{port}: cannot listen there ({exc.strerror})") from None
     sock.set_inheritable(True)
     return sock
 
 
-async def serve_http(service, host: str, port: int, stop: asyncio.Event) -> None:
+async def serve_http(service, host: str, port: int, stop: asyncio.Event, *,
+                     sock: socket.socket | None = None) -> None:
     """Serve :func:`create_app` with uvicorn in the running loop until ``stop`` is set.
 
     Meant to run beside the service:
@@ -328,17 +348,20 @@ async def serve_http(service, host: str, port: int, stop: asyncio.Event) -> None
         TCP port (0: any free one).
     stop : asyncio.Event
         Set to shut the server down.
+    sock : socket.socket, optional
+        A socket bound by :func:`listen_socket` beforehand (the CLI binds it before it prints the URL).
 
     Raises
     ------
     ConfigError
-        The address cannot be listened on (port in use, unknown host), naming ``--host``/``--port``.
+        The address cannot be listened on (port in use, unknown host), naming ``--http``.
     """
-    try:
-        sock = _listen(host, port)
-    except ConfigError:
-        stop.set()
-        raise
+    if sock is None:
+        try:
+            sock = listen_socket(host, port)
+        except ConfigError:
+            stop.set()
+            raise
     config = uvicorn.Config(create_app(service), host=host, port=port, log_level="warning", lifespan="off",
                             timeout_graceful_shutdown=2)
     server = _Server(config)
@@ -358,4 +381,4 @@ async def serve_http(service, host: str, port: int, stop: asyncio.Event) -> None
         if not ok:
             stop.set()
     if not ok:
-        raise ConfigError(f"the dashboard server on {host}:{port} (--host/--port) did not start")
+        raise ConfigError(f"--http {host}:{port}: the dashboard server did not start")

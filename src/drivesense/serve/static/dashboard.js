@@ -3,7 +3,9 @@
  * One WebSocket (/ws) brings a "hello" (machines and logged events), then "frame" messages (5 per s:
  * force of the last 2 s and the status of every machine) and "event" messages.  A "resync" message
  * means events were lost to this (slow) client: they are re-read from /api/events?since=<last seq>.
- * The spectra are polled from /api/machines/{id}/spectrum every second.
+ * The spectra are polled from /api/machines/{id}/spectrum every second.  While the WebSocket is down (a
+ * proxy that does not pass WebSockets, a server restarting) the page polls /api/machines and /api/events
+ * every 2 s instead, and says so: it never shows "No events yet" while the service has logged some.
  */
 (function () {
   "use strict";
@@ -48,6 +50,19 @@
     var c = $("conn");
     c.className = "pill pill-" + kind;
     c.lastChild.textContent = text;
+  }
+
+  /* While the WebSocket is down: machine states and events by plain HTTP (no force traces). */
+  function pollFallback() {
+    if (connected) return;
+    fetch("/api/machines").then(function (r) { return r.ok ? r.json() : null; })
+      .then(function (list) {
+        if (!list || connected) return;
+        list.forEach(function (st) { ensureMachine(st.machine).status = st; renderStatus(st.machine); });
+        setConn("wait", "live stream unavailable \u2014 polling every 2 s");
+      })
+      .catch(function () { /* the server is down: the WebSocket retry says so */ });
+    resync();
   }
 
   function connect() {
@@ -181,8 +196,7 @@
     var mm = machines[id], st = mm.status;
     if (!st) return;
     ensureAxes(mm, st.axes || ["x"]);
-    mm.el.state.textContent = st.state;
-    mm.el.state.className = "badge state-" + st.state;
+    renderBadge(id);
     var src = st.source || {};
     var bits = [src.kind || "source"];
     if (src.name) bits.push(src.name);
@@ -400,6 +414,19 @@
     if (render) renderEvents();
   }
 
+  /* The machine's badge: its source state, or ALARM (red) while it has an unacknowledged alarm. */
+  function renderBadge(id) {
+    var mm = machines[id], st = mm.status;
+    if (!st) return;
+    var alarmed = Object.keys(events).some(function (k) {
+      var e = events[k];
+      return e.machine === id && RED_KINDS[e.kind] && !e.acknowledged;
+    });
+    mm.el.state.textContent = alarmed ? "alarm" : st.state;
+    mm.el.state.className = "badge state-" + (alarmed ? "alarm" : st.state);
+    mm.el.state.title = alarmed ? "unacknowledged alarm; source " + st.state : "source " + st.state;
+  }
+
   function severity(kind) { return RED_KINDS[kind] ? "sev-red" : AMBER_KINDS[kind] ? "sev-amber" : ""; }
 
   function renderEvents() {
@@ -428,6 +455,7 @@
     Object.keys(machines).forEach(function (id) {
       var card = $("machine-" + id);
       if (card) card.classList.toggle("alarmed", open.some(function (e) { return e.machine === id; }));
+      renderBadge(id);
     });
     var banner = $("alarm");
     if (open.length) {
@@ -514,6 +542,7 @@
 
   connect();
   setInterval(pollSpectra, 1000);
+  setInterval(pollFallback, 2000);
   setInterval(tick, 500);
   tick();
 })();
