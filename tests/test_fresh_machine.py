@@ -253,3 +253,17 @@ def test_user_text_is_never_read_as_markup_or_emoji(feed_files):
         err_console.print(":end:")
     assert cap.get().strip() == ":end:"
     assert np.isfinite(read_recording(folder / "raw.csv")["force_x"]).all()
+
+
+def test_acknowledging_an_alarm_twice_keeps_the_first_acknowledgement(tmp_path):
+    from drivesense.serve.outputs import EventLog
+
+    log = EventLog(tmp_path / "events.jsonl")
+    log.append({"id": "m1/breakage/x/1", "machine": "m1", "kind": "breakage", "axis": "x", "time_s": 1.0,
+                "detected": 0.0})
+    first = log.acknowledge("m1/breakage/x/1", "night shift")
+    again = log.acknowledge("m1/breakage/x/1", "someone else")
+    assert again == first and again["by"] == "night shift"
+    log.close()
+    lines = (tmp_path / "events.jsonl").read_text().splitlines()
+    assert sum('"ack"' in line for line in lines) == 1

@@ -122,8 +122,8 @@ def register(app: typer.Typer) -> None:
     @app.command()
     @friendly
     def monitor(
-        config: Annotated[Optional[Path], typer.Argument(help="CONFIG.toml naming the machines (see the README's "
-                                                          "'Monitoring a machine').")] = None,
+        config: Annotated[Optional[Path], typer.Argument(help="CONFIG.toml naming the machines (see "
+                                                          "docs/MONITORING.md).")] = None,
         replay: Annotated[Optional[Path], typer.Option("--replay", help="Watch one trace (CSV, .nc or .xml) played "
                                                        "as a live stream; takes the options of 'detect'.")] = None,
         demo: Annotated[bool, typer.Option("--demo", help="Watch the built-in simulated machine (a flute breaks "

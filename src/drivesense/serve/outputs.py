@@ -204,7 +204,8 @@ class EventLog:
         return [r for r in self.recent if r["id"] not in self.alarmed and float(r.get("detected", 0.0)) >= since]
 
     def acknowledge(self, event_id: str, by: str = "") -> dict:
-        """Mark an event acknowledged (an ``{"ack": id}`` line in the log).
+        """Mark an event acknowledged (an ``{"ack": id}`` line in the log); once: acknowledging it again
+        returns the first acknowledgement (who and when) unchanged.
 
         Parameters
         ----------
@@ -222,6 +223,8 @@ class EventLog:
 
         if event_id not in self.ids:
             raise MissingChannelError(f"no event with id {event_id!r}")
+        if event_id in self.acknowledged:
+            return self.acknowledged[event_id]
         ack = {"ack": event_id, "by": str(by)[:64], "at": time.time()}
         self._write(ack)
         self.sync(timeout=5.0)
