@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, parse_window,
-                                   progress_bar, write_json)
+                                   progress_bar, warn, write_json)
 from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
                                    ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt, check_detector_options)
 
@@ -85,6 +85,10 @@ def _run(job, inputs, archive, query, machine, out: Path, workers, scheduler, re
         console.print(f"failed: {r['input']}: {r['error']}", markup=False, soft_wrap=True)
     if len(failures) > 5:
         console.print(f"... and {len(failures) - 5} more (the summary's 'error' column)", markup=False)
+    unknown = [r for r in report.rows if job.kind == "detect" and r.get("status") == "ok" and r.get("teeth") is None]
+    if unknown:
+        warn(f"{len(unknown)} input(s) without a known tooth count (e.g. {unknown[0]['input']}): breakage/chipping "
+             f"detection was off there (the reason is in each .events.json); --teeth N turns it on")
     write_json(json_path, report.to_dict())
     if report.failed:                                  # the batch ran through; the exit status tells a script
         raise typer.Exit(1)
@@ -165,7 +169,8 @@ def detect(
     """Events in every input ('detect' on each: an .events.json each; counts and kinds in the summary)."""
     from drivesense.fleet.jobs import DetectJob
 
-    check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs)
+    check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs,
+                           force_limit=force_limit)
     job = DetectJob(reader=_reader(fs, resample, assume_si, bad_samples), teeth=teeth, spindle_rpm=spindle_rpm,
                     limits=limits, force_limit=force_limit, baseline_revs=baseline_revs,
                     **_estimate_fields(method, axis_file, axes_file, model_dir, idle, tare, axis_name))

@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, build_estimator, check_output,
-                                   console, friendly, parse_window, trace_reader, write_json)
+                                   console, friendly, parse_window, trace_reader, warn, write_json)
 
 __all__ = ["register"]
 
@@ -25,24 +25,33 @@ ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="Trained model
 SpindleRpmOpt = Annotated[Optional[float], typer.Option("--spindle-rpm", help="Spindle speed [min^-1] when the trace "
                                                         "has no spindle_speed column.")]
 TeethOpt = Annotated[Optional[int], typer.Option("--teeth", help="Number of teeth (flutes) of the tool: the breakage "
-                                                 "detector needs it (default: the trace's tool, when it names one).")]
+                                                 "detector needs it (default: the trace's tool, when it names one, "
+                                                 "else read from the force's tooth-passing line; breakage is off "
+                                                 "when that is not clear).")]
 LimitsOpt = Annotated[Optional[Path], typer.Option("--limits", help="LIMITS.json from 'drivesense teach'.")]
 ForceLimitOpt = Annotated[Optional[float], typer.Option("--force-limit", help="Collision/overload limit [N] "
                                                         "(default: the taught one).")]
 
 
 def check_detector_options(*, spindle_rpm: Optional[float] = None, teeth: Optional[int] = None,
-                           baseline_revs: Optional[int] = None) -> None:
-    """Refuse ``--spindle-rpm`` <= 0, ``--teeth`` < 1 and ``--baseline-revs`` < 3 (``detect``, ``batch detect``,
-    ``monitor --replay``), naming the option."""
-    from drivesense.errors import ConfigError
+                           baseline_revs: Optional[int] = None, force_limit: Optional[float] = None) -> None:
+    """Refuse ``--spindle-rpm`` <= 0, ``--teeth`` < 1, ``--baseline-revs`` < 3 and ``--force-limit`` <= 0
+    (``detect``, ``batch detect``, ``monitor --replay``) before any work, naming the option."""
+    from drivesense.monitor.pipeline import check_detector_settings
 
-    if spindle_rpm is not None and not spindle_rpm > 0:
-        raise ConfigError(f"--spindle-rpm must be > 0, got {spindle_rpm!r}")
-    if teeth is not None and teeth < 1:
-        raise ConfigError(f"--teeth must be >= 1, got {teeth!r}")
-    if baseline_revs is not None and baseline_revs < 3:
-        raise ConfigError(f"--baseline-revs must be >= 3 revolutions, got {baseline_revs!r}")
+    check_detector_settings(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs,
+                            force_limit_n=force_limit)
+
+
+def _teeth_line(choice) -> str:
+    """``2 (--teeth)``, ``2 (tool metadata)`` or ``2 (inferred from the spectrum: ... line at ... Hz ...)``."""
+    ev = choice.evidence
+    if "tooth_passing_hz" not in ev:
+        return f"{choice.teeth} ({choice.source})"
+    return (f"{choice.teeth} ({choice.source}: {ev['channel']}'s line at {ev['tooth_passing_hz']:.1f} Hz = "
+            f"{choice.teeth} x the spindle's {ev['spindle_hz']:.2f} Hz, {ev['dominance']:g}x the strongest other "
+            f"order; {choice.teeth} equal pitches explain {100 * ev['pitch_share']:.0f} % of a revolution's pattern; "
+            f"--teeth N overrides)")
 
 
 def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
@@ -94,7 +103,8 @@ def register(app: typer.Typer) -> None:
         check_output(json_path, "--json")
         if plot is not None:
             check_output(plot, "--plot")
-        check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs)
+        check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs,
+                               force_limit=force_limit)
         taught = None if limits is None else TeachLimits.from_json(read_json_file(limits, "--limits file"))
         est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                               axis_name=axis_name)
@@ -103,12 +113,12 @@ def register(app: typer.Typer) -> None:
         found = detect_in_trace(rec, inputs, band_hz=getattr(getattr(est, "signal", None), "lpf_hz", None),
                                 teeth=teeth, spindle_rpm=spindle_rpm, limits=taught, force_limit_n=force_limit,
                                 baseline_revs=baseline_revs)
-        report, detectors, z = found.report, found.detectors, found.teeth
+        report, detectors = found.report, found.detectors
+        for note in found.notes:
+            warn(note)
         payload = events_to_json(report.events, report.latency_s)
-        payload.update({"trace": str(trace), "method": method, "detectors": [d.name for d in detectors],
-                        "teeth": z, "estimator_latency_s": float(inputs.meta["latency_s"])})
-        if z is None:
-            payload["note"] = "no --teeth given: breakage and chipping were not looked for"
+        payload.update({"trace": str(trace), "method": method, **found.to_json(),
+                        "estimator_latency_s": float(inputs.meta["latency_s"])})
         write_json(json_path, payload)
         if plot is not None:
             from drivesense.plot import plot_events, save_figure
@@ -124,8 +134,10 @@ def register(app: typer.Typer) -> None:
             ev = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in e.evidence.items())
             table.add_row(f"{e.time_s:.4f}", e.kind, e.axis, f"{e.confidence:.2f}", escape(ev))
         console.print(table)
+        if found.teeth_choice is not None and found.teeth is not None:
+            console.print(f"teeth: {_teeth_line(found.teeth_choice)}", markup=False)
         console.print(f"{len(report.events)} event(s); declared latency {report.latency_s * 1e3:.1f} ms "
-                      f"(detectors: {', '.join(d.name for d in detectors)}); wrote {json_path}", markup=False)
+                      f"(detectors: {', '.join(d.name for d in detectors)})", markup=False)
 
     @app.command()
     @friendly

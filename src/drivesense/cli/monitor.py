@@ -14,8 +14,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, trace_reader,
-                                   write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly,
+                                   show_warnings, trace_reader, write_json)
 from drivesense.cli.detect import (AxesOpt, AxisNameOpt, AxisOpt, ForceLimitOpt, IdleOpt, LimitsOpt, MethodOpt,
                                    ModelOpt, SpindleRpmOpt, TareOpt, TeethOpt,
                                    check_detector_options)
@@ -181,7 +181,8 @@ def register(app: typer.Typer) -> None:
         if duration is not None and not duration > 0:
             raise ConfigError(f"--duration must be > 0 [s], got {duration!r}")
         check_speed(speed, "--speed")
-        check_detector_options(baseline_revs=baseline_revs)
+        check_detector_options(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs,
+                               force_limit=force_limit)
         if worker is None and fleet != "main":
             raise ConfigError(f"--fleet {fleet} names the fleet a worker joins: give --worker NAME too")
         if worker is not None and events is None and not (config is not None and _config_names_events(config)):
@@ -194,10 +195,12 @@ def register(app: typer.Typer) -> None:
         if config is not None:
             cfg = load_config(config, read=trace_reader(fs, resample, assume_si, bad_samples))
         elif replay is not None:
-            cfg = _replay_config(replay, trace_reader(fs, resample, assume_si, bad_samples), axis_file=axis_file,
-                                 method=method, idle=idle, tare=tare, spindle_rpm=spindle_rpm, teeth=teeth,
-                                 limits=limits, force_limit=force_limit, baseline_revs=baseline_revs,
-                                 axis_name=axis_name, axes_file=axes_file, model_dir=model_dir, speed=speed)
+            with show_warnings():                    # e.g. "breakage detection is off": one warning line each
+                cfg = _replay_config(replay, trace_reader(fs, resample, assume_si, bad_samples),
+                                     axis_file=axis_file, method=method, idle=idle, tare=tare,
+                                     spindle_rpm=spindle_rpm, teeth=teeth, limits=limits, force_limit=force_limit,
+                                     baseline_revs=baseline_revs, axis_name=axis_name, axes_file=axes_file,
+                                     model_dir=model_dir, speed=speed)
         else:
             from drivesense.serve.demo import demo_machine
 

@@ -265,7 +265,8 @@ class DetectJob(EstimateJob):
     Parameters
     ----------
     teeth : int, optional
-        ``--teeth`` (default: the trace's tool).
+        ``--teeth`` (default: the trace's tool, else inferred from the spectrum: see
+        :func:`drivesense.monitor.teeth.resolve_teeth`).
     spindle_rpm : float, optional
         ``--spindle-rpm`` [min^-1] (default: the trace's spindle_speed).
     limits : Path, optional
@@ -310,13 +311,14 @@ class DetectJob(EstimateJob):
                                 force_limit_n=self.force_limit, baseline_revs=self.baseline_revs)
         events = found.report.events
         payload = events_to_json(events, found.report.latency_s)
-        payload.update({"method": self.method, "detectors": [d.name for d in found.detectors],
-                        "teeth": found.teeth, "estimator_latency_s": float(inputs.meta["latency_s"])})
+        payload.update({"method": self.method, **found.to_json(),
+                        "estimator_latency_s": float(inputs.meta["latency_s"])})
         write_json_file(Path(f"{out_stem}{self.outputs[0]}"), payload)
         kinds = sorted({e.kind for e in events})
         return {"samples": int(rec.n_samples), "duration_s": float(rec.duration), "events": len(events),
                 "event_kinds": ",".join(kinds), "first_event_s": float(events[0].time_s) if events else None,
-                "teeth": found.teeth, "latency_s": float(found.report.latency_s)}
+                "teeth": found.teeth, "teeth_source": found.teeth_choice.source if found.teeth_choice else None,
+                "latency_s": float(found.report.latency_s)}
 
 
 @dataclass

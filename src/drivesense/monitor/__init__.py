@@ -1,5 +1,6 @@
 """Monitoring: process events (breakage, chipping, chatter, collision/overload, teach-in limits) from force
-streams, tool wear from cutting coefficients, when to calibrate next, runout from once-per-revolution vibration."""
+streams, the tool's tooth count from the force's spectrum (when nobody gives it), tool wear from cutting
+coefficients, when to calibrate next, runout from once-per-revolution vibration."""
 
 from drivesense.monitor.breakage import BreakageDetector
 from drivesense.monitor.chatter import ChatterDetector
@@ -7,6 +8,7 @@ from drivesense.monitor.detector import Detection, Detector, DetectorStream, Eve
 from drivesense.monitor.overload import OverloadDetector
 from drivesense.monitor.pipeline import DetectionReport, default_detectors, detector_inputs, run_detectors
 from drivesense.monitor.teach import TeachInDetector, TeachLimits, teach
+from drivesense.monitor.teeth import TeethChoice, infer_teeth, resolve_teeth
 from drivesense.monitor.cadence import AdaptiveCadence, CadenceProposal, CadenceSettings, propose_interval
 from drivesense.monitor.runout import RunoutEstimate, estimate_runout
 from drivesense.monitor.wear import (WearReport, WearState, WearTracker, WearTrackerSettings, percent_power_increase,
@@ -18,4 +20,4 @@ __all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "tra
            "Event", "Detection", "Detector", "DetectorStream", "BreakageDetector", "ChatterDetector",
            "OverloadDetector",
            "TeachInDetector", "TeachLimits", "teach", "detector_inputs", "default_detectors", "run_detectors",
-           "DetectionReport"]
+           "DetectionReport", "TeethChoice", "infer_teeth", "resolve_teeth"]

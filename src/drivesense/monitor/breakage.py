@@ -522,6 +522,26 @@ class BreakageDetector(Detector):
             events.append((start + int(ev_index[e]), kind, confidence, evidence))
         return events, stat, thr
 
+    def unusable(self, fs: float, spindle_rpm: float | None = None) -> str | None:
+        """Why the detector cannot run at ``fs`` with the spindle at ``spindle_rpm`` (None when it can).
+
+        Its window reads the harmonics of the rotation up to the tooth-passing one, which must lie below
+        0.45 ``fs``.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        spindle_rpm : float, optional
+            Spindle speed [min^-1] (default: the detector's own, if any).
+        """
+        rpm = spindle_rpm or self.spindle_rpm
+        f_tooth = self.teeth * rpm / 60.0 if rpm else 0.0
+        if f_tooth < 0.45 * fs:
+            return None
+        return (f"the tooth-passing frequency {f_tooth:.4g} Hz ({self.teeth} teeth at {rpm:.0f} min^-1) is above "
+                f"what a trace sampled at {fs:g} Hz resolves: it needs a trace sampled above {f_tooth / 0.45:.0f} Hz")
+
     def _highpass(self, state: dict, force: np.ndarray, w: float) -> np.ndarray:
         """The force without what is slower than a third of the rotation (a ramp of an overload, the
         estimator's slow errors): it would leak into every harmonic of the window.  ``w``: the chunk's
@@ -529,6 +549,8 @@ class BreakageDetector(Detector):
         if force.size == 0:
             return np.ascontiguousarray(force)
         corner = max(w / _TWO_PI / 3.0, self.min_rpm / 60.0 / 3.0)
+        if corner >= 0.45 * state["fs"]:
+            raise SignalTooShortError(f"breakage detector: {self.unusable(state['fs'], w * 60.0 / _TWO_PI)}")
         if state.get("hp_corner") is None or abs(corner - state["hp_corner"]) > 0.05 * state["hp_corner"]:
             state["hp_corner"] = corner
             state["hp_sos"] = scipy.signal.butter(2, corner, btype="high", fs=state["fs"], output="sos")

@@ -41,7 +41,21 @@ __all__ = ["ChatterDetector"]
 _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
- _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3) = range(23)
+ _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT) = range(24)
+#: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
+GUARDS = {1: "settling (a cut's start, a feed or spindle-speed change)",
+          2: "forced level changing (an exit, an abrupt engagement change)",
+          3: "above the threshold for less than hold_revs, or no spectral line of its own"}
+
+
+@njit(cache=True, nogil=True)
+def _unconfirmed(sc, held, start, upto):  # pragma: no cover - numba
+    """The run above the threshold that ends here without an event: code 3 over its samples in this chunk
+    (``start``: the chunk's first sample since the stream began; ``upto``: the chunk index it ends at)."""
+    if sc[_HOLD] > 0.0 and sc[_LATCH] == 0.0:
+        for j in range(max(int(sc[_RUNAT]) - start, 0), upto):
+            if held[j] == 0.0:
+                held[j] = 3.0
 
 
 @njit(cache=True, nogil=True)
@@ -64,12 +78,15 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc,
-                  ring, fring, levels, stat, thr_out, cand):  # pragma: no cover - numba
-    n = force.size
+                  ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+    """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
+    chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
+    n = force.size - off
     cap = ring.size
     nfr = fring.size
     b0, b1, b2, a1, a2 = sos[0], sos[1], sos[2], sos[4], sos[5]
-    for i in range(n):
+    for m in range(n):
+        i = off + m
         w = omega[i]
         f = force[i]
         head = int(sc[_HEAD])
@@ -85,6 +102,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
         delay = _TWO_PI / w * fs
         # a spindle-speed change invalidates the comb for a revolution
         if abs(w - sc[_W_REF]) > 0.01 * max(w, 1e-9):
+            _unconfirmed(sc, held, start, i)
             sc[_W_REF] = w
             sc[_ARMED] = 0.0
             sc[_HOLD] = 0.0
@@ -132,6 +150,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             sc[_AIRFOR] += 1.0
             if sc[_AIRFOR] > settle_revs * delay:      # well away from a cut's start or end
                 sc[_EN] += 0.1 * a * (sc[_EE] - sc[_EN])
+            _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
             sc[_LATCH] = 0.0
             sc[_CUTFOR] = 0.0
@@ -160,14 +179,21 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
                 ratio = rf / levels[old_k]
                 sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else (ratio - 1.0) / 4.0
         if sc[_LEVEL] > 0.15:
+            _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
+            held[i] = 2.0
         if sc[_CUTFOR] < settle_revs * delay:
+            _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
+            held[i] = 1.0
             continue
         if r > threshold:
+            if sc[_HOLD] == 0.0:
+                sc[_RUNAT] = start + i
             sc[_HOLD] += 1.0
             sc[_QUIET] = 0.0
         else:
+            _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
             sc[_QUIET] += 1.0
             if r < 0.5 * threshold and sc[_QUIET] > max(settle_revs * delay, fs):
@@ -177,7 +203,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             cand[0] = r
             cand[1] = rf
             cand[2] = w
-            return i + 1
+            return m + 1
     return n
 
 
@@ -251,6 +277,8 @@ class ChatterDetector(Detector):
     """
 
     name = "chatter"
+    #: Guard codes :meth:`process` returns per sample (0: judged).
+    GUARDS = GUARDS
 
     def __init__(self, axis: str = "x", *, spindle_rpm: float | None = None, threshold: float = 0.05,
                  hold_revs: float = 2.6, window_revs: float = 0.5, highpass_hz: float = 150.0, gate_n: float = 2.0,
@@ -287,6 +315,29 @@ class ChatterDetector(Detector):
         """
         return min(self.highest_hz or 0.45 * fs, 0.45 * fs)
 
+    @property
+    def min_fs_hz(self) -> float:
+        """The sample rate [Hz] the chatter band needs: above it, 0.45 fs clears 1.5 ``highpass_hz``."""
+        return 1.5 * self.highpass_hz / 0.45
+
+    def unusable(self, fs: float, spindle_rpm: float | None = None) -> str | None:
+        """Why the detector cannot run on a stream at ``fs`` (None when it can), in words a user acts on.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        spindle_rpm : float, optional
+            Not used (the chatter band does not depend on it) [min^-1].
+        """
+        if fs <= self.min_fs_hz:
+            return (f"the chatter detector needs a trace sampled above {self.min_fs_hz:.0f} Hz (it looks for "
+                    f"chatter from {self.highpass_hz:g} Hz up), this one is sampled at {fs:g} Hz")
+        if self.highest(fs) <= 1.5 * self.highpass_hz:
+            return (f"the chatter detector looks for chatter from {self.highpass_hz:g} Hz up, but the force "
+                    f"estimate is trusted only below {self.highest(fs):g} Hz (its bandwidth)")
+        return None
+
     def spectrum_samples(self, fs: float) -> int:
         """Samples of the confirming spectrum: the power of two at or above 0.4 s (the delay line holds it).
 
@@ -316,22 +367,22 @@ class ChatterDetector(Detector):
         fs : float
             Sample rate [Hz].
         """
-        if self.highpass_hz >= 0.45 * fs:
-            raise SignalTooShortError(f"chatter detector: the high-pass corner {self.highpass_hz:g} Hz is too "
-                                      f"close to Nyquist at {fs:g} Hz (--highpass-hz)")
+        why = self.unusable(fs)
+        if why:
+            raise (SignalTooShortError if fs <= self.min_fs_hz else ConfigError)(why)
         cap = max(2 * int(math.ceil(fs * 60.0 / self.min_rpm)) + 8, self.spectrum_samples(fs))
         sos = scipy.signal.butter(2, self.highpass_hz, btype="high", fs=fs, output="sos")[0]
         top = self.highest(fs)
-        if top <= 1.5 * self.highpass_hz:
-            raise ConfigError(f"chatter detector: the band {self.highpass_hz:g}-{top:g} Hz is empty "
-                              f"(--highpass-hz, --highest-hz)")
         lp = scipy.signal.butter(2, top, btype="low", fs=fs, output="sos")[0]
-        return {"sc": np.zeros(23), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
+        return {"sc": np.zeros(24), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
                 "sos": np.ascontiguousarray(sos, dtype=float),
                 "lp": np.ascontiguousarray(lp, dtype=float), "fs": float(fs)}
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
-        """Events, statistic r and threshold for the next samples (see the module docstring).
+        """Events, statistic r, threshold and guard codes (:data:`GUARDS`) for the next samples.
+
+        See the module docstring.  The guard code is 3 over a run above the threshold that ended without an
+        event (its samples in this chunk; a run that began in an earlier chunk keeps its codes there).
 
         Parameters
         ----------
@@ -348,6 +399,7 @@ class ChatterDetector(Detector):
         feed_ok = feed_steady(arrays, state)
         stat = np.empty(n)
         thr = np.empty(n)
+        held = np.zeros(n)
         stat[:] = np.nan
         thr[:] = np.nan
         cand = np.zeros(3)
@@ -356,9 +408,9 @@ class ChatterDetector(Detector):
         fs = state["fs"]
         pos = 0
         while pos < n:
-            done = pos + _chatter_loop(force[pos:], omega[pos:], fs, state["sos"], state["lp"], self.gate_n,
-                                       self.threshold, self.hold_revs, self.window_revs, self.settle_revs, feed_ok[pos:], sc,
-                                       state["ring"], state["fring"], state["levels"], stat[pos:], thr[pos:], cand)
+            done = pos + _chatter_loop(force, omega, fs, state["sos"], state["lp"], self.gate_n, self.threshold,
+                                       self.hold_revs, self.window_revs, self.settle_revs, feed_ok, sc, state["ring"],
+                                       state["fring"], state["levels"], stat, thr, held, pos, start, cand)
             if done < n or cand[0] > 0.0:
                 if cand[0] > 0.0:
                     ok, freq, prom = _spectral_check(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
@@ -383,7 +435,8 @@ class ChatterDetector(Detector):
                         sc[_HOLD] = max(self.hold_revs * delay - self.recheck_s * fs, 0.0)
                     else:
                         state["pending"] = None
+                        _unconfirmed(sc, held, start, done)
                         sc[_HOLD] = 0.0
                     cand[:] = 0.0
             pos = done
-        return events, stat, thr
+        return events, stat, thr, held

@@ -5,7 +5,7 @@
     det = ds.monitor.BreakageDetector(axis="x", teeth=2)
     events = det.detect(forces)          # forces: a Recording with force_x [N] (and spindle_speed [rad/s])
     stream = det.stream(fs)              # constant-size state, the same events as detect()
-    out = stream.push(chunk)             # Detection(events, statistic, threshold)
+    out = stream.push(chunk)             # Detection(events, statistic, threshold[, held])
 
 A detector reads a force stream -- any estimator's output, or a dynamometer
 -- plus the spindle speed when it needs the spindle angle (a
@@ -127,11 +127,16 @@ class Detection:
         The detector's statistic per sample of the chunk (for plots) [-] or [N].
     threshold : ndarray
         The threshold it is compared with, per sample (NaN while not armed) [unit of the statistic].
+    held : ndarray or None
+        Per sample, 0 where the detector judged its statistic and a positive code where its guards held it
+        from raising an event (the codes are the detector's ``GUARDS``) [-]; None for a detector without
+        guards it reports.
     """
 
     events: list
     statistic: np.ndarray
     threshold: np.ndarray
+    held: np.ndarray | None = None
 
 
 def spindle_speed_of(chunk: Mapping[str, np.ndarray], n: int, spindle_rpm: float | None) -> np.ndarray:
@@ -299,7 +304,22 @@ class Detector(ABC):
             ``(sample_index, kind, confidence, evidence)`` per event.
         statistic, threshold : ndarray
             Per sample of the chunk.
+        held : ndarray, optional
+            A fourth array a detector with guards may return: per sample, 0 where it judged its statistic,
+            else the code (a key of its ``GUARDS``) of the guard that held it.
         """
+
+    def unusable(self, fs: float, spindle_rpm: float | None = None) -> str | None:
+        """Why the detector cannot judge a stream at ``fs`` (None when it can), in words a user acts on.
+
+        Parameters
+        ----------
+        fs : float
+            Sample rate [Hz].
+        spindle_rpm : float, optional
+            The spindle speed [min^-1] (the trace's median).
+        """
+        return None
 
     def check_ready(self, state: Any) -> None:
         """Raise when a finished batch run could not arm the detector (e.g. too short for a baseline).
@@ -427,9 +447,9 @@ class DetectorStream:
         """
         self._t0_fixed = True
         n = len(next(iter(arrays.values()))) if arrays else 0
-        raw, stat, thr = self.detector.process(self.state, arrays, self.samples_seen)
+        raw, stat, thr, *held = self.detector.process(self.state, arrays, self.samples_seen)
         events = [Event(kind=kind, time_s=self._t0 + index / self.fs, axis=self.detector.axis,
                         confidence=conf, latency_s=self.latency_s, detector=self.detector.name, evidence=ev)
                   for index, kind, conf, ev in raw]
         self.samples_seen += n
-        return Detection(events, stat, thr)
+        return Detection(events, stat, thr, held[0] if held else None)

@@ -13,6 +13,7 @@ ramp) instead of taking the new pattern for an event.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -25,10 +26,57 @@ from drivesense.monitor.chatter import ChatterDetector
 from drivesense.monitor.detector import Detector, Event, attach_latency
 from drivesense.monitor.overload import OverloadDetector
 from drivesense.monitor.teach import TeachInDetector, TeachLimits
+from drivesense.monitor.teeth import TeethChoice, resolve_teeth
 from drivesense.recording import Recording
 
 __all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "run_detectors", "DetectionReport",
-           "tool_teeth", "detect_in_trace", "TraceDetection"]
+           "tool_teeth", "detect_in_trace", "TraceDetection", "check_detector_settings", "CLI_OPTION_NAMES"]
+
+#: What notes call a detector's events.
+_LABELS = {"breakage": "breakage/chipping"}
+
+#: How :func:`check_detector_settings` names the settings: the CLI's options.
+CLI_OPTION_NAMES = {"spindle_rpm": "--spindle-rpm", "teeth": "--teeth", "baseline_revs": "--baseline-revs",
+                    "force_limit_n": "--force-limit"}
+
+
+def check_detector_settings(*, spindle_rpm: float | None = None, teeth: int | None = None,
+                            baseline_revs: int | None = None, force_limit_n: float | None = None,
+                            names: dict | None = None) -> None:
+    """Refuse a spindle speed or force limit that is not a finite number > 0, fewer than one tooth or fewer
+    than 3 baseline revolutions, naming the setting (``--force-limit must be > 0 [N], got -5.0``).
+
+    Parameters
+    ----------
+    spindle_rpm : float, optional
+        Spindle speed [min^-1].
+    teeth : int, optional
+        Number of teeth [-].
+    baseline_revs : int, optional
+        Revolutions of the breakage baseline [-].
+    force_limit_n : float, optional
+        Collision/overload limit [N].
+    names : dict, optional
+        What messages call each setting (default :data:`CLI_OPTION_NAMES`).
+
+    Raises
+    ------
+    ConfigError
+        Naming the setting, its unit and the value given.
+    """
+    names = {**CLI_OPTION_NAMES, **(names or {})}
+    for key, value, unit in (("spindle_rpm", spindle_rpm, ""), ("force_limit_n", force_limit_n, " [N]")):
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            raise ConfigError(f"{names[key]} must be > 0{unit}, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{names[key]} must be a finite number > 0{unit}, got {value!r}")
+    if teeth is not None and (isinstance(teeth, bool) or not isinstance(teeth, int) or teeth < 1):
+        raise ConfigError(f"{names['teeth']} must be >= 1, got {teeth!r}")
+    if baseline_revs is not None and (isinstance(baseline_revs, bool) or not isinstance(baseline_revs, int)
+                                      or baseline_revs < 3):
+        raise ConfigError(f"{names['baseline_revs']} must be >= 3 revolutions, got {baseline_revs!r}")
 
 #: Smoothing of the path speed [s].
 FEED_SMOOTHING_S = 50e-3
@@ -148,12 +196,16 @@ class DetectionReport:
         Detector name -> (statistic, threshold) arrays per sample.
     detectors : list of Detector
         What ran.
+    held : dict
+        Detector name -> its guard codes per sample (0: judged; > 0: its guards held the statistic, see
+        the detector's ``GUARDS``), for the detectors that report them.
     """
 
     events: list
     latency_s: float
     statistics: dict = field(default_factory=dict)
     detectors: list = field(default_factory=list)
+    held: dict = field(default_factory=dict)
 
 
 def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bool = True) -> DetectionReport:
@@ -173,6 +225,7 @@ def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bo
     extra = float(inputs.meta.get("latency_s", 0.0))
     events: list[Event] = []
     stats = {}
+    held = {}
     latency = 0.0
     for det in detectors:
         stream = det.stream(inputs.fs, t0=inputs.t0)
@@ -181,24 +234,33 @@ def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bo
             det.check_ready(stream.state)
         events += attach_latency(out.events, extra)
         stats[det.name] = (out.statistic, out.threshold)
+        if out.held is not None:
+            held[det.name] = out.held
         latency = max(latency, stream.latency_s + extra)
-    return DetectionReport(sorted(events, key=lambda e: e.time_s), latency, stats, list(detectors))
+    return DetectionReport(sorted(events, key=lambda e: e.time_s), latency, stats, list(detectors), held)
 
 
-def tool_teeth(trace: Recording, teeth: int | None) -> int | None:
-    """``teeth`` if given, else the flutes of the tool the trace's metadata names (None when neither says).
+def tool_teeth(trace: Recording, teeth: int | None, *, forces: Recording | None = None,
+               spindle_rpm: float | None = None, band_hz: float | None = None) -> int | None:
+    """``teeth`` if given, else the flutes of the trace's tool, else the count read from its spectrum.
+
+    The count of :func:`~drivesense.monitor.teeth.resolve_teeth` (None when it stays unknown; its
+    ``TeethChoice`` says why).
 
     Parameters
     ----------
     trace : Recording
-        The trace (``meta["tool"]["flutes"]``).
+        The trace (``meta["tool"]["flutes"]``; its signals for the inference).
     teeth : int, optional
         The number of teeth given by the user (``--teeth``).
+    forces : Recording, optional
+        Estimated forces on the trace's time base (read first by the inference).
+    spindle_rpm : float, optional
+        Fixed spindle speed [min^-1] when the trace has no ``spindle_speed``.
+    band_hz : float, optional
+        The estimated forces' bandwidth [Hz].
     """
-    if teeth is not None:
-        return teeth
-    tool = trace.meta.get("tool") if isinstance(trace.meta.get("tool"), dict) else None
-    return int(tool["flutes"]) if tool and isinstance(tool.get("flutes"), int) else None
+    return resolve_teeth(trace, teeth, forces=forces, spindle_rpm=spindle_rpm, band_hz=band_hz).teeth
 
 
 @dataclass
@@ -215,12 +277,31 @@ class TraceDetection:
         Teeth used (None: breakage and chipping were not looked for).
     spindle_rpm : float or None
         Spindle speed the detectors were given [min^-1].
+    teeth_choice : TeethChoice or None
+        Where the teeth came from (``--teeth``, the tool's metadata, the spectrum) and the evidence.
+    notes : list of str
+        Each detector that is off and why, with what turns it on (one line each).
     """
 
     report: DetectionReport
     detectors: list
     teeth: int | None
     spindle_rpm: float | None
+    teeth_choice: TeethChoice | None = None
+    notes: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        """The detection's settings for EVENTS.json: detectors, teeth (with source and evidence), notes.
+
+        Returns
+        -------
+        dict
+        """
+        out = {"detectors": [d.name for d in self.detectors]}
+        out.update(self.teeth_choice.to_json() if self.teeth_choice is not None else {"teeth": self.teeth})
+        if self.notes:
+            out["notes"] = list(self.notes)
+        return out
 
 
 def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | None = None, teeth: int | None = None,
@@ -228,9 +309,12 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
                     force_limit_n: float | None = None, baseline_revs: int | None = None) -> TraceDetection:
     """Run the default detectors on every estimated force of a trace (``drivesense detect``'s rule).
 
-    The teeth come from ``teeth`` or the trace's tool; the spindle speed from ``spindle_rpm`` or the median
-    of the trace's ``spindle_speed`` (it sets the latency the detectors declare); the taught limits serve the
-    first axis.
+    The teeth come from ``teeth``, the trace's tool or the spectrum of the forces and drive signals
+    (:func:`~drivesense.monitor.teeth.resolve_teeth`); without them breakage and chipping are off and a
+    note says so.  The spindle speed comes from ``spindle_rpm`` or the median of the trace's
+    ``spindle_speed`` (it sets the latency the detectors declare); the taught limits serve the first axis.
+    A detector the trace's sample rate or the estimate's bandwidth rules out (chatter on a 50 Hz trace) is
+    left out with a note.
 
     Parameters
     ----------
@@ -247,11 +331,13 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
     Raises
     ------
     ConfigError
-        Neither a ``spindle_speed`` channel nor ``spindle_rpm``.
+        Neither a ``spindle_speed`` channel nor ``spindle_rpm``; no detector that can run on the trace.
     """
     if "spindle_speed" not in inputs.channels and spindle_rpm is None:
         raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
-    z = tool_teeth(trace, teeth)
+    choice = resolve_teeth(trace, teeth, forces=inputs, spindle_rpm=spindle_rpm, band_hz=band_hz)
+    z = choice.teeth
+    notes = [choice.note] if choice.note else []
     rpm = spindle_rpm
     if rpm is None:
         rpm = float(np.median(inputs["spindle_speed"])) * 60.0 / (2 * np.pi)
@@ -262,4 +348,11 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
     for ax in axes:
         detectors += default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=limits if ax == axes[0] else None,
                                        force_limit_n=limit, band_hz=band_hz, baseline_revs=baseline_revs)
-    return TraceDetection(run_detectors(inputs, detectors), detectors, z, rpm)
+    for det in [d for d in detectors if d.unusable(inputs.fs, rpm)]:
+        detectors.remove(det)
+        note = f"{_LABELS.get(det.name, det.name)} detection is off: {det.unusable(inputs.fs, rpm)}"
+        notes += [] if note in notes else [note]
+    if not detectors and notes:
+        raise ConfigError("no detector can run on this trace (" + "; ".join(notes) + "): give --force-limit N "
+                          "(collision/overload) or --limits LIMITS.json (teach-in), which run at any sample rate")
+    return TraceDetection(run_detectors(inputs, detectors), detectors, z, rpm, choice, notes)

@@ -23,6 +23,10 @@ def plot_events(inputs: "Recording", report: "DetectionReport", *, channel: str 
                 truth: list | None = None, title: str | None = None) -> Figure:
     """Force on top, one panel per detector below (statistic and threshold), events as vertical lines.
 
+    Where a detector's guards held its statistic (``report.held``: a cut's start, a feed change, a
+    transient shorter than the detector's hold...) the statistic is drawn grey and dashed: crossing the
+    threshold there raises no event, by design.
+
     Parameters
     ----------
     inputs : Recording
@@ -46,9 +50,14 @@ def plot_events(inputs: "Recording", report: "DetectionReport", *, channel: str 
     t = inputs.time
     axes[0].plot(t, inputs[channel], lw=0.4, color="#455a64")
     axes[0].set_ylabel(f"{channel} [N]")
+    held_by = getattr(report, "held", {}) or {}
     for ax, name in zip(axes[1:], names):
         stat, thr = report.statistics[name]
-        ax.plot(t, stat, lw=0.6, label="statistic")
+        held = held_by.get(name)
+        if held is None or not np.any(held > 0):
+            ax.plot(t, stat, lw=0.6, label="statistic")
+        else:
+            _plot_held(ax, t, np.asarray(stat, dtype=float), np.asarray(held) > 0)
         if np.any(np.isfinite(thr)):
             ax.plot(t, thr, lw=0.8, ls="--", color="#c62828", label="threshold")
         ax.set_ylabel(name)
@@ -58,9 +67,11 @@ def plot_events(inputs: "Recording", report: "DetectionReport", *, channel: str 
             ax.axvline(e.time_s, color=_COLOURS.get(e.kind, "#c62828"), lw=1.0)
         for e in truth or []:
             ax.axvline(e["time_s"], color="#9e9e9e", lw=1.0, ls=":")
-    for e in report.events:
-        axes[0].annotate(e.kind, (e.time_s, 1.0), xycoords=("data", "axes fraction"), rotation=90, va="top",
-                         ha="right", fontsize=7, color=_COLOURS.get(e.kind, "#c62828"))
+    for e in report.events:          # beside its line, not on it
+        axes[0].annotate(e.kind, (e.time_s, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                         textcoords="offset points", rotation=90, va="top", ha="left", fontsize=7,
+                         color=_COLOURS.get(e.kind, "#c62828"),
+                         bbox=dict(boxstyle="square,pad=0.1", facecolor="white", edgecolor="none", alpha=0.8))
     axes[-1].set_xlabel("time [s]")
     if truth:
         axes[0].plot([], [], color="#9e9e9e", ls=":", label="simulated event (truth)")
@@ -68,3 +79,13 @@ def plot_events(inputs: "Recording", report: "DetectionReport", *, channel: str 
     fig.suptitle(title or f"{len(report.events)} event(s); latency {report.latency_s * 1e3:.1f} ms")
     fig.tight_layout()
     return fig
+
+
+def _plot_held(ax, t: np.ndarray, stat: np.ndarray, held: np.ndarray) -> None:
+    """The statistic solid where the detector judged it, grey and dashed (on a shaded band) where its guards
+    held it."""
+    edge = held | np.concatenate([held[1:], [False]]) | np.concatenate([[False], held[:-1]])  # joined lines
+    ax.plot(t, np.where(~held, stat, np.nan), lw=0.6, label="statistic")
+    ax.plot(t, np.where(edge, stat, np.nan), lw=0.6, ls="--", color="#757575",
+            label="held by the detector's guards (shaded): no event there")
+    ax.fill_between(t, 0, 1, where=held, transform=ax.get_xaxis_transform(), color="#9e9e9e", alpha=0.15, lw=0)

@@ -224,7 +224,8 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     where : str
         Prefix of error messages (``machine 'vmc1' axis 'x'``).
     teeth : int or None
-        Flutes of the tool.
+        Flutes of the tool (``--replay`` without it: read from the trace's estimated forces, see
+        :func:`drivesense.monitor.teeth.resolve_teeth`; a warning says when breakage stays off).
     spindle_rpm : float or None
         Fixed spindle speed [min^-1].
     tare_trace : Recording, optional
@@ -235,8 +236,11 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     from drivesense.estimate.registry import make_from_files
     from drivesense.io import read_json_file
     from drivesense.monitor import TeachLimits
-    from drivesense.monitor.pipeline import default_detectors
+    from drivesense.monitor.pipeline import check_detector_settings, default_detectors
 
+    cli = labels is not None and not labels
+    if cli:                                    # the CLI's options (--replay): named as such, before any work
+        check_detector_settings(teeth=teeth, force_limit_n=spec.get("force_limit"))
     method = _get(spec, "method", str, where, "vibration", need="a method name")
     files = {k: (_path(base, spec[k], where, k) if spec.get(k) is not None else None)
              for k in ("axis_file", "axes_file", "model")}
@@ -275,12 +279,30 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     force_limit = _number(spec, "force_limit", where)
     baseline = _get(spec, "baseline_revs", int, where, need="an integer >= 3", check=lambda v: v >= 3)
     band = getattr(getattr(est, "signal", None), "lpf_hz", None)
+    if cli and teeth is None and tare_trace is not None and "breakage" in kinds:
+        teeth = _replay_teeth(tare_trace, est, spindle_rpm, band)
     detectors = default_detectors(name, teeth=teeth, spindle_rpm=spindle_rpm, limits=taught,
                                   force_limit_n=force_limit, band_hz=band, kinds=kinds, baseline_revs=baseline)
     if not detectors:
         raise ConfigError(f"{where}: no detector to run: give 'teeth' for breakage, 'force_limit' or 'limits' for "
                           f"overload")
     return AxisPipeline(name, est, detectors)
+
+
+def _replay_teeth(trace: Any, est: Any, spindle_rpm: float | None, band: float | None) -> int | None:
+    """``--replay`` without ``--teeth`` or a tool in the trace: the count from the trace's estimated forces
+    (:func:`~drivesense.monitor.teeth.resolve_teeth`); a ``UserWarning`` says breakage is off when it stays
+    unknown."""
+    import warnings
+
+    from drivesense.monitor.pipeline import detector_inputs
+    from drivesense.monitor.teeth import resolve_teeth
+
+    choice = resolve_teeth(trace, None, forces=detector_inputs(trace, est.estimate(trace)), spindle_rpm=spindle_rpm,
+                           band_hz=band)
+    if choice.teeth is None:
+        warnings.warn(choice.note, UserWarning, stacklevel=2)
+    return choice.teeth
 
 
 def _source(machine: str, spec: Any, base: Path, read: Callable, where: str) -> Source:
