@@ -23,6 +23,8 @@ batch_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
 
 InputsArg = Annotated[Optional[list[str]], typer.Argument(
     help="Files, folders (their .nc/.csv/.xml) or glob patterns ('runs/**/*.nc'); or use --archive.")]
+WearInputsArg = Annotated[Optional[list[str]], typer.Argument(
+    help="Session tables (CSV), folders of them or glob patterns ('sessions/*.csv').")]
 OutOpt = Annotated[Path, typer.Option("--out", help="Output folder: results/, rows/, summary.parquet.")]
 ArchiveInOpt = Annotated[Optional[str], typer.Option(
     "--archive", help="Take the inputs from this archive (SQLite file or postgresql:// DSN); results go back "
@@ -180,7 +182,7 @@ def detect(
 @batch_app.command("wear")
 @friendly
 def wear(
-    inputs: InputsArg = None,
+    inputs: WearInputsArg = None,
     out: OutOpt = Path("batch-out"),
     diameter: Annotated[Optional[float], typer.Option(help="Tool diameter [mm] if a table has none.")] = None,
     flutes: Annotated[Optional[int], typer.Option(help="Number of flutes if a table has none.")] = None,
