@@ -152,3 +152,47 @@ def test_zero_epochs_are_refused_by_the_config_and_the_cli(tmp_path):
                                    "--epochs", "0"])
     assert res.exit_code == 2 and "--epochs must be >= 1" in res.output
     assert not (tmp_path / "m").exists()
+
+
+def test_kernel_matches_pytorch_at_widths_off_its_four_input_sweep():
+    """Input and hidden widths that are no multiple of four: the padding rows of the packed weights are inert."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(3)
+    lstm = torch.nn.LSTM(5, 7, 2, batch_first=True).double().eval()
+    head = torch.nn.Linear(7, 1).double()
+    conv = torch.nn.Conv1d(5, 1, 3, bias=False).double()
+    x = np.random.default_rng(6).uniform(-1, 1, (300, 5))
+    with torch.no_grad():
+        xt = torch.from_numpy(x)[None]
+        fir = conv(torch.nn.functional.pad(xt.transpose(1, 2), (2, 0)))[0, 0]
+        ref = (head(lstm(xt)[0])[0, :, 0] + fir).numpy()
+    state = {f"lstm.{k}": v for k, v in lstm.state_dict().items()}
+    state.update({f"head.{k}": v for k, v in head.state_dict().items()})
+    state["skip.weight"] = conv.weight
+    w = LSTMWeights.from_state_dict(state, 2)
+    assert w.packed.shape == (2, 16, 28)                        # 7 + 7 rows (the second layer) padded to 16
+    np.testing.assert_allclose(run_lstm(w, LSTMState(w), x), ref, atol=2e-5)
+    with pytest.raises(ValueError, match="5 inputs per row"):
+        run_lstm(w, LSTMState(w), x[:, :4])
+
+
+def test_inference_timing_is_the_best_pass_without_the_warm_up():
+    """bench learn times the best of several passes, the first (compiling) call left out, CPU time beside."""
+    import time
+
+    from drivesense.bench.learn import INFER_REPEATS, time_inference
+
+    class Slow:
+        calls = 0
+
+        def estimate(self, rec):
+            self.calls += 1
+            time.sleep(0.3 if self.calls == 1 else 0.002)         # the first call compiles
+
+    class Run:
+        duration = 8.0
+
+    out = time_inference(Slow(), [Run(), Run()])
+    assert out["repeats"] == INFER_REPEATS and out["signal_seconds"] == 16.0
+    assert 0.004 <= out["wall_seconds"] <= out["wall_seconds_median"] < 0.3
+    assert 0.0 <= out["cpu_seconds"] < 0.3 and "load_average" in out
