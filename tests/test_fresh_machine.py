@@ -9,7 +9,6 @@ rules (declared dependencies, no skips under ``CI=true``) hold.
 from __future__ import annotations
 
 import asyncio
-import os
 import socket
 import tomllib
 from pathlib import Path
@@ -81,18 +80,17 @@ def test_ci_runs_the_readme_test_command_in_a_new_environment():
     assert "bash scripts/test" in readme
 
 
-def test_a_skip_under_ci_is_a_failure(pytester):
+def test_a_skip_under_ci_is_a_failure(pytester, monkeypatch):
     """``CI=true``: a test that would skip (no browser, broker, database or package) fails the run."""
     pytester.copy_example(str(ROOT / "tests" / "conftest.py"))
     pytester.makepyfile(test_skips="import pytest\n\ndef test_needs_a_server():\n    pytest.skip('no server')\n")
-    os.environ["CI"] = "true"
-    try:
+    with monkeypatch.context() as env:                 # (CI's own CI=true is restored afterwards)
+        env.setenv("CI", "true")
         result = pytester.runpytest_inprocess("-q", "-p", "no:cacheprovider")
-    finally:
-        os.environ.pop("CI")
-    assert result.ret != 0
-    result.stdout.fnmatch_lines(["*CI=true: 1 test(s) skipped*no server*"])
-    assert pytester.runpytest_inprocess("-q", "-p", "no:cacheprovider").ret == 0      # elsewhere a skip is fine
+        assert result.ret != 0
+        result.stdout.fnmatch_lines(["*CI=true: 1 test(s) skipped*no server*"])
+        env.delenv("CI")
+        assert pytester.runpytest_inprocess("-q", "-p", "no:cacheprovider").ret == 0   # elsewhere a skip is fine
 
 
 # ------------------------------------------------------------------ the live monitor
