@@ -6,6 +6,7 @@ of skipping it.
 
 from __future__ import annotations
 
+import asyncio
 import os
 import shutil
 
@@ -13,7 +14,7 @@ import pytest
 
 from drivesense.serve.broker import LocalBroker, free_port
 
-__all__ = ["Mosquitto", "free_port", "require_binary"]
+__all__ = ["Mosquitto", "free_port", "require_binary", "run_until_cuts"]
 
 
 def require_binary(name: str, *candidates: str) -> str:
@@ -35,3 +36,22 @@ class Mosquitto(LocalBroker):
     def __init__(self) -> None:
         require_binary("mosquitto", "/usr/sbin/mosquitto")
         super().__init__()
+
+
+def run_until_cuts(service, spec, cuts: int, timeout: float = 120.0) -> None:
+    """Run a :class:`~drivesense.serve.service.MonitorService` until its simulated machine ``spec`` has played
+    ``cuts`` cuts (as fast as it goes with ``speed=0``), then stop it; the machine keeps its buffers."""
+
+    async def main():
+        stop = asyncio.Event()
+
+        async def stopper():
+            while spec.source.cuts < cuts:
+                await asyncio.sleep(0.02)
+            stop.set()
+
+        task = asyncio.create_task(stopper())
+        await asyncio.wait_for(service.run(stop), timeout)
+        task.cancel()
+
+    asyncio.run(main())

@@ -29,6 +29,7 @@ is skipped (it fails instead when ``CI=true``).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import shutil
@@ -189,7 +190,9 @@ def _artifacts() -> Path:
     return folder
 
 
-def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
+@contextlib.contextmanager
+def _browser_page():
+    """A 1280x900 page of headless Chromium driven by Playwright (closed afterwards)."""
     from playwright.sync_api import Error as PlaywrightError
     from playwright.sync_api import sync_playwright
 
@@ -200,80 +203,84 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
         except PlaywrightError as exc:
             _unavailable(f"Chromium at {chromium} does not start under Playwright: {exc}")
         try:
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            live.start()                                     # the clock runs from here: the breakage is ~5 s away
-            problems: list[str] = []
-            foreign: list[str] = []
-            page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
-            page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
-            page.on("request", lambda r: None if r.url.startswith((live.url, "data:", "ws://127.0.0.1"))
-                    else foreign.append(r.url))
-            page.add_init_script(OBSERVER)
-            page.goto(live.url + "/", wait_until="domcontentloaded")
-            assert page.title() == "drivesense monitor"
-
-            canvas = page.wait_for_selector("#force-demo-x", timeout=60000)
-            page.wait_for_function("document.getElementById('force-demo-x').dataset.updates > 0", timeout=60000)
-            before = int(canvas.get_attribute("data-updates"))
-            page.wait_for_timeout(1000)
-            after = int(canvas.get_attribute("data-updates"))
-            assert after >= before + 2, f"the force trace was redrawn {after - before} times in 1 s"
-            assert page.text_content("#conn").strip() == "live"
-
-            found = "!!document.querySelector('#events [data-kind=\"breakage\"]')"
-            first_poll, shown = time.time(), None
-            while time.time() < first_poll + 20:            # poll the DOM every 50 ms (a cheap evaluate each)
-                if page.evaluate(found):
-                    shown = time.time()
-                    break
-                time.sleep(0.05)
-            assert shown is not None, "no breakage row in #events within 20 s"
-            in_page = page.evaluate("window.__breakageShown || null") / 1e3   # the MutationObserver's stamp [s]
-            row = page.query_selector('#events [data-kind="breakage"]')
-            events = _get_json(live.url + "/api/events")
-            brk = next(e for e in events if e["kind"] == "breakage")
-            due = live.first_due + brk["time_s"]
-            if in_page < first_poll:                       # there before the polling began: its stamp counts
-                shown = in_page
-            latency = shown - due
-            from_start = shown - (live.start_wall + brk["time_s"])
-            truth = live.spec.source.truth[1]["events"][0]
-            print(f"\nbreakage: true {truth['time_s']:.4f} s, detected at sample time {brk['time_s']:.4f} s "
-                  f"(declared latency {brk['latency_s']:.3f} s); in the DOM {latency:.3f} s after its sample was "
-                  f"due ({from_start:.3f} s counted from the service start, {live.first_due - live.start_wall:.3f} s "
-                  f"before the first chunk was due); chunk arrival {brk['arrival'] - due:+.3f} s, detection "
-                  f"{brk['detected'] - brk['arrival']:+.3f} s, to the DOM {shown - brk['detected']:+.3f} s "
-                  f"(by the page's own stamp {in_page - brk['detected']:+.3f} s)")
-            assert abs(brk["time_s"] - truth["time_s"]) < 0.1
-            assert latency <= MAX_LATENCY_S, f"breakage shown {latency:.3f} s after its sample was due"
-            assert "sev-red" in (row.get_attribute("class") or "")
-            assert row.get_attribute("data-id") == brk["id"]
-            assert not page.is_hidden("#alarm") and "breakage" in page.text_content("#alarm-kind").lower()
-            badge = "#machine-demo .badge"                   # the machine's badge turns red with its card
-            page.wait_for_function(f"document.querySelector('{badge}').textContent === 'alarm'", timeout=5000)
-            assert "state-alarm" in page.get_attribute(badge, "class")
-
-            page.wait_for_timeout(900)                       # let the spectrum and the trace show the breakage
-            page.wait_for_function("document.querySelectorAll('#stats-demo tr').length >= 2", timeout=5000)
-            assert page.text_content("#stats-demo").count("breakage") >= 1
-            shot = _artifacts() / "monitor-dashboard.png"
-            page.screenshot(path=str(shot), full_page=True)
-            assert shot.stat().st_size > 20000
-            if os.environ.get("DRIVESENSE_UPDATE_SCREENSHOT") == "1":
-                docs = HERE.parent / "docs" / "img"
-                docs.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(shot, docs / "monitor-dashboard.png")
-
-            page.on("dialog", lambda d: d.accept("browser-test"))     # the token prompt, asked once
-            page.click("#alarm-ack")
-            page.wait_for_selector("#alarm", state="hidden", timeout=5000)
-            page.wait_for_selector(f'#events tr[data-id="{brk["id"]}"].acked', timeout=5000)
-            assert next(e for e in _get_json(live.url + "/api/events") if e["id"] == brk["id"])["acknowledged"]
-            assert page.text_content(badge) != "alarm"        # acknowledged: the source's state again
-            assert not problems, problems
-            assert not foreign, f"the page fetched outside the service: {foreign}"
+            yield browser.new_page(viewport={"width": 1280, "height": 900})
         finally:
             browser.close()
+
+
+def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
+    with _browser_page() as page:
+        live.start()                                     # the clock runs from here: the breakage is ~5 s away
+        problems: list[str] = []
+        foreign: list[str] = []
+        page.on("pageerror", lambda exc: problems.append(f"page error: {exc}"))
+        page.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+        page.on("request", lambda r: None if r.url.startswith((live.url, "data:", "ws://127.0.0.1"))
+                else foreign.append(r.url))
+        page.add_init_script(OBSERVER)
+        page.goto(live.url + "/", wait_until="domcontentloaded")
+        assert page.title() == "drivesense monitor"
+
+        canvas = page.wait_for_selector("#force-demo-x", timeout=60000)
+        page.wait_for_function("document.getElementById('force-demo-x').dataset.updates > 0", timeout=60000)
+        before = int(canvas.get_attribute("data-updates"))
+        page.wait_for_timeout(1000)
+        after = int(canvas.get_attribute("data-updates"))
+        assert after >= before + 2, f"the force trace was redrawn {after - before} times in 1 s"
+        assert page.text_content("#conn").strip() == "live"
+
+        found = "!!document.querySelector('#events [data-kind=\"breakage\"]')"
+        first_poll, shown = time.time(), None
+        while time.time() < first_poll + 20:            # poll the DOM every 50 ms (a cheap evaluate each)
+            if page.evaluate(found):
+                shown = time.time()
+                break
+            time.sleep(0.05)
+        assert shown is not None, "no breakage row in #events within 20 s"
+        in_page = page.evaluate("window.__breakageShown || null") / 1e3   # the MutationObserver's stamp [s]
+        row = page.query_selector('#events [data-kind="breakage"]')
+        events = _get_json(live.url + "/api/events")
+        brk = next(e for e in events if e["kind"] == "breakage")
+        due = live.first_due + brk["time_s"]
+        if in_page < first_poll:                       # there before the polling began: its stamp counts
+            shown = in_page
+        latency = shown - due
+        from_start = shown - (live.start_wall + brk["time_s"])
+        truth = live.spec.source.truth[1]["events"][0]
+        print(f"\nbreakage: true {truth['time_s']:.4f} s, detected at sample time {brk['time_s']:.4f} s "
+              f"(declared latency {brk['latency_s']:.3f} s); in the DOM {latency:.3f} s after its sample was "
+              f"due ({from_start:.3f} s counted from the service start, {live.first_due - live.start_wall:.3f} s "
+              f"before the first chunk was due); chunk arrival {brk['arrival'] - due:+.3f} s, detection "
+              f"{brk['detected'] - brk['arrival']:+.3f} s, to the DOM {shown - brk['detected']:+.3f} s "
+              f"(by the page's own stamp {in_page - brk['detected']:+.3f} s)")
+        assert abs(brk["time_s"] - truth["time_s"]) < 0.1
+        assert latency <= MAX_LATENCY_S, f"breakage shown {latency:.3f} s after its sample was due"
+        assert "sev-red" in (row.get_attribute("class") or "")
+        assert row.get_attribute("data-id") == brk["id"]
+        assert not page.is_hidden("#alarm") and "breakage" in page.text_content("#alarm-kind").lower()
+        badge = "#machine-demo .badge"                   # the machine's badge turns red with its card
+        page.wait_for_function(f"document.querySelector('{badge}').textContent === 'alarm'", timeout=5000)
+        assert "state-alarm" in page.get_attribute(badge, "class")
+
+        page.wait_for_timeout(900)                       # let the spectrum and the trace show the breakage
+        page.wait_for_function("document.querySelectorAll('#stats-demo tr').length >= 2", timeout=5000)
+        assert page.text_content("#stats-demo").count("breakage") >= 1
+        shot = _artifacts() / "monitor-dashboard.png"
+        page.screenshot(path=str(shot), full_page=True)
+        assert shot.stat().st_size > 20000
+        if os.environ.get("DRIVESENSE_UPDATE_SCREENSHOT") == "1":
+            docs = HERE.parent / "docs" / "img"
+            docs.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(shot, docs / "monitor-dashboard.png")
+
+        page.on("dialog", lambda d: d.accept("browser-test"))     # the token prompt, asked once
+        page.click("#alarm-ack")
+        page.wait_for_selector("#alarm", state="hidden", timeout=5000)
+        page.wait_for_selector(f'#events tr[data-id="{brk["id"]}"].acked', timeout=5000)
+        assert next(e for e in _get_json(live.url + "/api/events") if e["id"] == brk["id"])["acknowledged"]
+        assert page.text_content(badge) != "alarm"        # acknowledged: the source's state again
+        assert not problems, problems
+        assert not foreign, f"the page fetched outside the service: {foreign}"
     deadline = time.time() + 5                          # the WebSocket's subscriber leaves with the browser
     while live.service.subscribers and time.time() < deadline:
         time.sleep(0.05)
@@ -282,25 +289,13 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
 @pytest.mark.parametrize("live", [False], ids=["no-websocket"], indirect=True)
 def test_dashboard_without_a_websocket_polls_and_still_shows_the_machine_and_the_breakage(live):
     """A server without a WebSocket library (a proxy that drops WebSockets): the page says so and polls."""
-    from playwright.sync_api import Error as PlaywrightError
-    from playwright.sync_api import sync_playwright
-
-    chromium = _chromium()
-    with sync_playwright() as p:
-        try:
-            browser = p.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS, headless=True)
-        except PlaywrightError as exc:
-            _unavailable(f"Chromium at {chromium} does not start under Playwright: {exc}")
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            live.start()
-            page.goto(live.url + "/", wait_until="domcontentloaded")
-            page.wait_for_selector("#machine-demo", timeout=15000)            # the card, from /api/machines
-            page.wait_for_function("document.getElementById('conn').textContent.indexOf('polling') >= 0",
-                                   timeout=15000)
-            page.wait_for_selector('#events [data-kind="breakage"]', timeout=30000)
-            assert page.is_hidden("#no-events")
-            assert page.text_content("#machine-demo .badge") == "alarm"
-            assert not page.is_hidden("#alarm")
-        finally:
-            browser.close()
+    with _browser_page() as page:
+        live.start()
+        page.goto(live.url + "/", wait_until="domcontentloaded")
+        page.wait_for_selector("#machine-demo", timeout=60000)            # the card, from /api/machines
+        page.wait_for_function("document.getElementById('conn').textContent.indexOf('polling') >= 0",
+                               timeout=60000)
+        page.wait_for_selector('#events [data-kind="breakage"]', timeout=60000)
+        assert page.is_hidden("#no-events")
+        assert page.text_content("#machine-demo .badge") == "alarm"
+        assert not page.is_hidden("#alarm")

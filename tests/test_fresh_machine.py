@@ -8,7 +8,6 @@ rules (declared dependencies, no skips under ``CI=true``) hold.
 
 from __future__ import annotations
 
-import asyncio
 import socket
 import tomllib
 from pathlib import Path
@@ -21,6 +20,7 @@ from drivesense.cli import app
 from drivesense.errors import ConfigError, SampleRateError
 from drivesense.io import read_recording, write_recording
 from drivesense.recording import Recording
+from servers import run_until_cuts
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parent.parent
@@ -161,20 +161,7 @@ def test_every_route_works_for_an_accepted_machine_id():
     mid = "Mill-7.a_b"
     spec = demo_machine(mid, speed=0, cut_s=3.0)
     svc = MonitorService([spec], token="t")
-
-    async def main():
-        stop = asyncio.Event()
-
-        async def stopper():
-            while spec.source.cuts < 2:
-                await asyncio.sleep(0.02)
-            stop.set()
-
-        task = asyncio.create_task(stopper())
-        await asyncio.wait_for(svc.run(stop), 120)
-        task.cancel()
-
-    asyncio.run(main())
+    run_until_cuts(svc, spec, 2)
     with TestClient(create_app(svc)) as client:
         assert client.get(f"/api/machines/{mid}/force?seconds=1").status_code == 200
         assert client.get(f"/api/machines/{mid}/spectrum?axis=x").status_code == 200

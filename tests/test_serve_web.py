@@ -21,6 +21,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 from drivesense.serve.demo import DEMO_FORCE_LIMIT_N, demo_machine  # noqa: E402
 from drivesense.serve.service import MonitorService  # noqa: E402
 from drivesense.serve.web import create_app  # noqa: E402
+from servers import run_until_cuts  # noqa: E402
 
 TOKEN = "test-token-5d1f"
 
@@ -36,20 +37,7 @@ def strict(text: str):
 def service(tmp_path_factory):
     spec = demo_machine(speed=0, cut_s=3.0)
     svc = MonitorService([spec], events_path=tmp_path_factory.mktemp("web") / "events.jsonl", token=TOKEN)
-
-    async def main():
-        stop = asyncio.Event()
-
-        async def stopper():
-            while spec.source.cuts < 4:
-                await asyncio.sleep(0.02)
-            stop.set()
-
-        task = asyncio.create_task(stopper())
-        await asyncio.wait_for(svc.run(stop), 120)
-        task.cancel()
-
-    asyncio.run(main())
+    run_until_cuts(svc, spec, 4)
     return svc
 
 
