@@ -292,6 +292,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _distinct_writes(chunks: list[Chunk]) -> int:
+    """How many of the writer's counter values the X current [A] of these chunks holds."""
+    cur = [c.arrays["x_current"] for c in chunks]
+    return np.unique(np.round((np.concatenate(cur) - 1.0) * 1000)).size if cur else 0
+
+
+def _block_samples(chunks: list[Chunk]) -> int:
+    """How many written (non-zero) samples of the block channel these chunks pass on."""
+    return sum(int(np.count_nonzero(c.arrays["x_current"] > 0)) for c in chunks)
+
+
 def test_opcua_source_samples_holds_reconnects_and_passes_blocks():
     pytest.importorskip("asyncua")
     port = _free_port()
@@ -329,20 +340,23 @@ def test_opcua_source_samples_holds_reconnects_and_passes_blocks():
 
         task = asyncio.create_task(src.run(put, stop))
         block_task = asyncio.create_task(block_src.run(put_block, stop))
-        await asyncio.sleep(1.5)
-        n_first, last_written = len(got), written[-1]
+        # the first run goes on until it has sampled many writes and passed many block samples (as long as
+        # that takes on a busy machine: the writer and the source share the loop)
+        await _until(lambda: len(got) >= 15 and _distinct_writes(got) > 50 and _block_samples(blocks) >= 300, 60)
+        last_written = written[-1]                         # the second run samples only later writes
         await server.stop()                                # the server goes away: run() raises
         with pytest.raises((ConnectionError, OSError, asyncio.TimeoutError)):
             await asyncio.wait_for(task, 8)
         with pytest.raises((ConnectionError, OSError, asyncio.TimeoutError)):
             await asyncio.wait_for(block_task, 8)
+        n_first = len(got)                                 # the first run's chunks: it emits until it sees the loss
         assert not src.describe()["connected"] and src.describe()["connects"] == 1
         await asyncio.sleep(0.2)
         await server.start()                               # back on the same port
         task = asyncio.create_task(src.run(put, stop))
-        await _until(lambda: len(got) >= n_first + 5, 8)
+        await _until(lambda: len(got) >= n_first + 5, 60)
         stop.set()
-        await asyncio.wait_for(task, 5)
+        await asyncio.wait_for(task, 60)
         write.cancel()
         await server.stop()
         assert src.describe()["connects"] == 2 and src.describe()["outage_s"] > 0.2

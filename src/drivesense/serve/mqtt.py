@@ -6,7 +6,11 @@ and delivers it on reconnection), one subscription per machine's topic.  The net
 little as it can -- it stamps each message's arrival, routes it by topic and wakes the event loop once
 per batch -- because every moment it holds the GIL delays the loop, and so the alarms.  Decoding happens
 in the loop.  Each machine holds at most ``max_pending`` undelivered messages; past that the network
-thread waits (backpressure reaches the broker, never memory).
+thread waits (backpressure reaches the broker, never memory).  paho acknowledges each message as it
+takes it, and the broker forgets it then; so no message may arrive without a route (the connection opens
+once the sources started together have added their topics), and when the service stops, the connection
+closes before the sources return, each handing on what its inbox holds.  What the broker had not delivered
+it keeps for the next run: nothing is lost.
 
 A machine shared by a fleet of workers (:mod:`~drivesense.serve.fleet`) has a session of its own instead
 (``hold_s`` given): MQTT 5, client id per machine, so the broker lets one worker at a time hold it and
@@ -104,6 +108,11 @@ class BrokerLink:
         self.users = 0
         self.manual_ack = manual_ack
         self.client_id = client_id
+        self.stopping: set[str] = set()        # topics whose source has stopped taking messages
+        self.closed = asyncio.Event()          # set once release() has closed the connection
+        self._shutting = False                 # the connection is being closed, or is closed
+        self._closer: asyncio.Task | None = None
+        self._disconnect_queued = threading.Event()
         if manual_ack:
             from paho.mqtt.packettypes import PacketTypes
             from paho.mqtt.properties import Properties
@@ -122,7 +131,13 @@ class BrokerLink:
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
         self.client.connect_async(host, port, keepalive=10, **connect)
-        self.client.loop_start()
+        # connected once the sources started with this one have added their topics: the broker delivers what
+        # it kept for the session at once, and a message for a topic without a route is lost (acknowledged)
+        loop.call_soon(self._start)
+
+    def _start(self) -> None:
+        if not self._shutting:
+            self.client.loop_start()
 
     @classmethod
     def shared(cls, host: str, port: int, client_id: str, *, manual_ack: bool = False) -> "BrokerLink":
@@ -157,15 +172,27 @@ class BrokerLink:
 
     def _on_message(self, client, userdata, msg) -> None:
         arrival = time.time()
-        route = self.routes.get(msg.topic)
+        route = None if self.closing else self.routes.get(msg.topic)
         if route is None:
+            self._leave()
             return
         while not route.slots.acquire(timeout=0.5):
             if self.closing:
+                self._leave()
                 return
         route.inbox.append((msg.topic, msg.payload, arrival, msg.mid if self.manual_ack else None))
         if len(route.inbox) == 1:                 # wake the loop once per batch, not per message
             self.loop.call_soon_threadsafe(route.ready.set)
+
+    def _leave(self) -> None:
+        """Leave a message to the broker (the link closing, or no machine's topic).
+
+        paho acknowledges a message (QoS 1) as soon as :meth:`_on_message` returns, unless the link acknowledges
+        by hand; an acknowledgement queued after the DISCONNECT is never sent.  So a closing link returns only once
+        its DISCONNECT is queued (:meth:`_shut`): the broker keeps the message for the next run.
+        """
+        if self.closing and not self.manual_ack:
+            self._disconnect_queued.wait(10.0)
 
     def _barrier(self, timeout: float = 2.0) -> None:
         """Wait until the broker has taken every acknowledgement sent so far (a hand-acknowledging link).
@@ -208,8 +235,43 @@ class BrokerLink:
             self.client.subscribe(topic, qos=1)
         return route
 
+    def release(self, topic: str) -> None:
+        """A machine's source has stopped; once every source of the link has, the connection closes.
+
+        The routes stay until :meth:`remove`: what arrives meanwhile is queued in their inboxes as before, and
+        each source hands on its inbox until :attr:`closed` is set and the inbox is empty.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        """
+        self.stopping.add(topic)
+        self._close_when_all_stopped()
+
+    def _close_when_all_stopped(self) -> None:
+        if not self._shutting and self.routes and set(self.routes) <= self.stopping:
+            self._shutting = True
+            self._closer = asyncio.ensure_future(self._close())
+
+    async def _close(self) -> None:
+        await asyncio.to_thread(self._shut)       # (paho's network thread is joined: not on the loop)
+        self.closed.set()
+        for route in self.routes.values():
+            route.ready.set()
+
+    def _shut(self) -> None:
+        """Close the connection and join paho's network thread (blocking); from now on every message is left
+        to the broker (:meth:`_leave`)."""
+        self.closing = True
+        if self.manual_ack and self.connected:
+            self._barrier()
+        self.client.disconnect()
+        self._disconnect_queued.set()
+        self.client.loop_stop()
+
     def remove(self, topic: str) -> None:
-        """Forget a machine's topic; the last one closes the connection.
+        """Forget a machine's topic; the last one closes the connection (if :meth:`release` has not).
 
         Parameters
         ----------
@@ -217,16 +279,17 @@ class BrokerLink:
             The topic.
         """
         route = self.routes.pop(topic, None)
+        self.stopping.discard(topic)
         if route is not None:
             self.users -= 1
+        if self.users <= 0 and not self._shutting:
+            self._shutting = True
+            self._shut()                          # (first: a network thread waiting on the route leaves it)
+        if route is not None:
             for _ in range(len(route.inbox) + 1):
                 route.slots.release()             # a network thread waiting on this route goes on
-        if self.users <= 0:
-            self.closing = True
-            if self.manual_ack and self.connected:
-                self._barrier()
-            self.client.disconnect()
-            self.client.loop_stop()
+        if self.users > 0:
+            self._close_when_all_stopped()
 
 
 class MQTTSource(Source):
@@ -252,6 +315,7 @@ class MQTTSource(Source):
     """
 
     kind = "mqtt"
+    drains = True
 
     def __init__(self, machine: str, url: str, topic: str | None = None, *, client_id: str | None = None,
                  max_pending: int = 64, hold_s: float | None = None) -> None:
@@ -285,6 +349,10 @@ class MQTTSource(Source):
     async def run(self, put: Put, stop: asyncio.Event) -> None:
         """Subscribe and hand on every message until stopped (see :class:`~drivesense.serve.sources.Source`).
 
+        Once stopped, a source that paho acknowledges for (no ``hold_s``) goes on handing on its inbox until the
+        link's connection is closed (every source of the link stopped) and the inbox is empty: the broker
+        has those messages no more.  What it has not delivered it keeps for the next run.
+
         Parameters
         ----------
         put : callable
@@ -303,22 +371,37 @@ class MQTTSource(Source):
                     route.ready.clear()
                     await route.ready.wait()              # one future per wake-up, nothing else
                     continue
-                topic, payload, arrival, mid = route.inbox.popleft()
-                route.slots.release()
-                self.messages += 1
-                try:
-                    item: Any = decode_chunk(payload, arrival=arrival)
-                    if item.machine != self.machine:
-                        item = WireError(f"topic {topic}: a chunk of machine '{item.machine}', expected "
-                                         f"'{self.machine}'")
-                except WireError as exc:
-                    item = exc
-                if mid is not None and not self._hold(link, mid, item):
-                    continue
-                await put(item)
+                item = self._take(link, route)
+                if item is not None:
+                    await put(item)
+            if not link.manual_ack:
+                link.release(self.topic)
+                while route.inbox or not link.closed.is_set():
+                    if not route.inbox:
+                        route.ready.clear()
+                        await route.ready.wait()          # a message, or the connection closed
+                        continue
+                    item = self._take(link, route)
+                    if item is not None:
+                        await put(item)
         finally:
             waiter.cancel()
             link.remove(self.topic)
+
+    def _take(self, link: BrokerLink, route: _Route) -> Any:
+        """The oldest message of the inbox: a chunk, the error that refuses it, or None (not to hand on)."""
+        topic, payload, arrival, mid = route.inbox.popleft()
+        route.slots.release()
+        self.messages += 1
+        try:
+            item: Any = decode_chunk(payload, arrival=arrival)
+            if item.machine != self.machine:
+                item = WireError(f"topic {topic}: a chunk of machine '{item.machine}', expected '{self.machine}'")
+        except WireError as exc:
+            item = exc
+        if mid is not None and not self._hold(link, mid, item):
+            return None
+        return item
 
     def _hold(self, link: BrokerLink, mid: int, item: Any) -> bool:
         """Keep a hand-acknowledged message for :meth:`settle`; False for a chunk handed on before (dropped)."""

@@ -39,6 +39,9 @@ __all__ = ["MachineSpec", "MonitorService", "Subscriber", "check_machine_id", "m
 QUEUE_CHUNKS = 64
 #: Dashboard frame period [s].
 FRAME_PERIOD_S = 0.2
+#: Longest wait for a stopping source that hands on what it holds (:attr:`Source.drains`) [s]; then it is
+#: cancelled.
+SOURCE_DRAIN_S = 30.0
 
 
 #: What a machine id may be: it is a path segment of the API (``/api/machines/<id>/force``), a part of every
@@ -302,6 +305,9 @@ class MonitorService:
     async def stop_machine(self, m: MachineSpec) -> None:
         """Stop a machine's source; its worker finishes what is queued (nothing when it is not running).
 
+        A source that drains (an ``mqtt`` source: messages the broker has handed over) hands on what it holds
+        first, up to :data:`SOURCE_DRAIN_S`; any other is cancelled at once.
+
         Parameters
         ----------
         m : MachineSpec
@@ -310,6 +316,8 @@ class MonitorService:
         if not m.tasks:
             return
         m.stop.set()
+        if m.source.drains:                           # the worker goes on taking what the source hands on
+            await asyncio.wait(m.tasks[:1], timeout=SOURCE_DRAIN_S)
         m.tasks[0].cancel()
         await m.queue.put(None)                       # the worker drains what is queued, then ends
         await asyncio.gather(*m.tasks, return_exceptions=True)

@@ -46,6 +46,9 @@ class Source(ABC):
 
     #: The config's ``source.kind``.
     kind: ClassVar[str] = ""
+    #: Whether :meth:`run`, once ``stop`` is set, still hands on what it has taken from its server (and the
+    #: server no longer keeps) before it returns: the service waits for it then, instead of cancelling it.
+    drains: ClassVar[bool] = False
 
     def __init__(self, machine: str) -> None:
         self.machine = machine
