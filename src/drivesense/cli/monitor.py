@@ -38,7 +38,7 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
                    baseline_revs, axis_name, axes_file, model_dir, speed):
     """The one-machine configuration of ``--replay TRACE`` (the options of ``drivesense detect``)."""
     from drivesense.errors import ConfigError
-    from drivesense.monitor.pipeline import tool_teeth
+    from drivesense.monitor.teeth import known_teeth
     from drivesense.serve.config import MonitorConfig, build_axis
     from drivesense.serve.machine import MachineMonitor
     from drivesense.serve.service import MachineSpec, machine_id_from
@@ -47,7 +47,8 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
     rec = read(trace, axis_name)
     if "spindle_speed" not in rec.channels and spindle_rpm is None:
         raise ConfigError("the trace has no spindle_speed column: give the spindle speed with --spindle-rpm RPM")
-    teeth = tool_teeth(rec, teeth)
+    known = known_teeth(rec, teeth)      # else build_axis infers it from the estimated forces, as detect does
+    teeth = None if known is None else known.teeth
     spec = {"method": method, "axis_file": axis_file and str(axis_file), "axes_file": axes_file and str(axes_file),
             "model": model_dir and str(model_dir), "idle": [str(p) for p in idle or []] or None, "tare": tare,
             "limits": limits and str(limits), "force_limit": force_limit, "baseline_revs": baseline_revs}

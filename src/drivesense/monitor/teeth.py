@@ -58,7 +58,7 @@ import scipy.ndimage
 
 from drivesense.recording import Recording
 
-__all__ = ["TeethChoice", "infer_teeth", "resolve_teeth", "TEETH_SOURCES"]
+__all__ = ["TeethChoice", "infer_teeth", "known_teeth", "resolve_teeth", "TEETH_SOURCES"]
 
 #: Where a tooth count came from (``TeethChoice.source``).
 TEETH_SOURCES = ("--teeth", "tool metadata", "inferred from the spectrum", "unknown")
@@ -403,6 +403,28 @@ def infer_teeth(trace: Recording, forces: Recording | None = None, *, spindle_rp
     return TeethChoice(counts[0], source, {**best, "channels": verdicts})
 
 
+def known_teeth(trace: Recording, teeth: int | None = None) -> TeethChoice | None:
+    """The tooth count someone stated: ``teeth`` (``--teeth``), else the trace's tool; None when neither says.
+
+    Parameters
+    ----------
+    trace : Recording
+        The trace (``meta["tool"]["flutes"]`` when its metadata names the tool).
+    teeth : int, optional
+        Given by the user (``--teeth``).
+
+    Returns
+    -------
+    TeethChoice or None
+    """
+    if teeth is not None:
+        return TeethChoice(int(teeth), TEETH_SOURCES[0])
+    tool = trace.meta.get("tool") if isinstance(trace.meta.get("tool"), dict) else None
+    if tool and isinstance(tool.get("flutes"), int) and not isinstance(tool["flutes"], bool) and tool["flutes"] >= 1:
+        return TeethChoice(int(tool["flutes"]), TEETH_SOURCES[1])
+    return None
+
+
 def resolve_teeth(trace: Recording, teeth: int | None = None, *, forces: Recording | None = None,
                   spindle_rpm: float | None = None, band_hz: float | None = None) -> TeethChoice:
     """The tooth count the detectors use: ``teeth`` (``--teeth``), else the trace's tool, else inferred.
@@ -420,9 +442,5 @@ def resolve_teeth(trace: Recording, teeth: int | None = None, *, forces: Recordi
     -------
     TeethChoice
     """
-    if teeth is not None:
-        return TeethChoice(int(teeth), TEETH_SOURCES[0])
-    tool = trace.meta.get("tool") if isinstance(trace.meta.get("tool"), dict) else None
-    if tool and isinstance(tool.get("flutes"), int) and not isinstance(tool["flutes"], bool) and tool["flutes"] >= 1:
-        return TeethChoice(int(tool["flutes"]), TEETH_SOURCES[1])
-    return infer_teeth(trace, forces, spindle_rpm=spindle_rpm, band_hz=band_hz)
+    known = known_teeth(trace, teeth)
+    return known if known is not None else infer_teeth(trace, forces, spindle_rpm=spindle_rpm, band_hz=band_hz)

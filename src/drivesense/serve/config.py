@@ -236,11 +236,9 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     from drivesense.estimate.registry import make_from_files
     from drivesense.io import read_json_file
     from drivesense.monitor import TeachLimits
-    from drivesense.monitor.pipeline import check_detector_settings, default_detectors
+    from drivesense.monitor.pipeline import default_detectors
 
-    cli = labels is not None and not labels
-    if cli:                                    # the CLI's options (--replay): named as such, before any work
-        check_detector_settings(teeth=teeth, force_limit_n=spec.get("force_limit"))
+    cli = labels is not None and not labels     # the CLI's options (--replay), checked by the command already
     method = _get(spec, "method", str, where, "vibration", need="a method name")
     files = {k: (_path(base, spec[k], where, k) if spec.get(k) is not None else None)
              for k in ("axis_file", "axes_file", "model")}
