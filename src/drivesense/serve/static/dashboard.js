@@ -414,14 +414,12 @@
     if (render) renderEvents();
   }
 
-  /* The machine's badge: its source state, or ALARM (red) while it has an unacknowledged alarm. */
+  /* The machine's badge: its source state, or ALARM (red) while it has an unacknowledged alarm (mm.alarmed,
+   * set by renderEvents: the frames, 5 per s, do not walk the event list). */
   function renderBadge(id) {
     var mm = machines[id], st = mm.status;
     if (!st) return;
-    var alarmed = Object.keys(events).some(function (k) {
-      var e = events[k];
-      return e.machine === id && RED_KINDS[e.kind] && !e.acknowledged;
-    });
+    var alarmed = !!mm.alarmed;
     mm.el.state.textContent = alarmed ? "alarm" : st.state;
     mm.el.state.className = "badge state-" + (alarmed ? "alarm" : st.state);
     mm.el.state.title = alarmed ? "unacknowledged alarm; source " + st.state : "source " + st.state;
@@ -454,7 +452,8 @@
       " \u00b7 " + (open.length ? open.length + " open alarm" + (open.length > 1 ? "s" : "") : "no open alarm");
     Object.keys(machines).forEach(function (id) {
       var card = $("machine-" + id);
-      if (card) card.classList.toggle("alarmed", open.some(function (e) { return e.machine === id; }));
+      machines[id].alarmed = open.some(function (e) { return e.machine === id; });
+      if (card) card.classList.toggle("alarmed", machines[id].alarmed);
       renderBadge(id);
     });
     var banner = $("alarm");
