@@ -16,7 +16,7 @@ from rich.table import Table
 
 __all__ = ["console", "err_console", "friendly", "warn", "key_column", "write_json", "progress_bar", "accuracy_table",
            "read_trace", "trace_reader", "build_estimator", "save_recording", "check_recording_suffix", "show_warnings", "AssumeSiOpt",
-           "FsOpt", "ResampleOpt", "BadSamplesOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
+           "FsOpt", "ResampleOpt", "BadSamplesOpt", "ColumnsOpt", "check_output", "check_output_folder", "OUTPUT_OPTIONS"]
 
 console = Console(emoji=False)          # user text such as "--tare START:END" is never an emoji code
 err_console = Console(stderr=True, emoji=False)
@@ -139,6 +139,10 @@ AssumeSiOpt = Annotated[bool, typer.Option(
                         "without this they are refused.")]
 FsOpt = Annotated[Optional[float], typer.Option(
     "--fs", metavar="HZ", help="CSV traces without a time column: their sample rate [Hz].")]
+ColumnsOpt = Annotated[Optional[str], typer.Option(
+    "--columns", metavar="MAP.toml|NAME",
+    help="CSV exports of a controller or edge device: the column map (which column is which channel, its unit, "
+         "scale and sign; unnamed columns are left out): a TOML file or a shipped map's name (e.g. kit-dmc60h).")]
 ResampleOpt = Annotated[Optional[float], typer.Option(
     "--resample", metavar="HZ", help="CSV traces with jittery time stamps: resample them explicitly onto a "
                                      "uniform grid at HZ [Hz] (linear interpolation, noted in the provenance).")]
@@ -152,27 +156,35 @@ BadSamplesOpt = Annotated[Optional[Literal["refuse", "repair", "off"]], typer.Op
 
 
 def read_trace(path: Path, axis_name: str = "x", *, fs: Optional[float] = None, resample: Optional[float] = None,
-               assume_si: bool = False, bad_samples: Optional[str] = None):
+               assume_si: bool = False, bad_samples: Optional[str] = None, columns=None):
     """Read a CSV (bare channel names get the axis prefix), a saved recording (.nc) or an XML experiment.
 
     ``fs``, ``resample`` and ``assume_si`` are the options ``--fs``, ``--resample`` and ``--assume-si``
     (:data:`FsOpt`, :data:`ResampleOpt`, :data:`AssumeSiOpt`); they concern CSV traces only (a .nc or .xml
     recording carries its time base and units).  ``bad_samples`` is ``--bad-samples`` (:data:`BadSamplesOpt`):
     None (not given) refuses impossible samples of CSV traces and leaves .nc/.xml recordings unchecked; given,
-    it applies to every format (CSV samples named by file line, the others by sample index).  Repairs and
-    notes are printed as ``warning: ...`` lines.
+    it applies to every format (CSV samples named by file line, the others by sample index).  ``columns`` is
+    ``--columns`` (:data:`ColumnsOpt`, a column map or its name).  Repairs and notes are printed as
+    ``warning: ...`` lines.
     """
     from drivesense.io import read_trace as read
 
     with show_warnings():
-        return read(path, axis_name, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples)
+        return read(path, axis_name, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples,
+                    columns=columns)
 
 
 def trace_reader(fs: Optional[float] = None, resample: Optional[float] = None, assume_si: bool = False,
-                 bad_samples: Optional[str] = None):
-    """:func:`read_trace` with a command's ``--fs``, ``--resample``, ``--assume-si`` and ``--bad-samples`` bound:
-    ``read(path[, axis])``."""
-    return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples)
+                 bad_samples: Optional[str] = None, columns: Optional[str] = None):
+    """:func:`read_trace` with a command's ``--fs``, ``--resample``, ``--assume-si``, ``--bad-samples`` and
+    ``--columns`` bound: ``read(path[, axis])`` (the column map is read once, here)."""
+    column_map = None
+    if columns is not None:
+        from drivesense.io.column_map import resolve_column_map
+
+        column_map = resolve_column_map(columns)
+    return functools.partial(read_trace, fs=fs, resample=resample, assume_si=assume_si, bad_samples=bad_samples,
+                             columns=column_map)
 
 
 def build_estimator(method: str, *, axis_file: Optional[Path] = None, axes_file: Optional[Path] = None,

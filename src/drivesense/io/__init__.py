@@ -17,6 +17,10 @@ from typing import Any, ClassVar, Self
 from ..errors import ConfigError
 
 __all__ = [
+    "ColumnMap",
+    "read_column_map",
+    "resolve_column_map",
+    "shipped_maps",
     "read_csv",
     "write_csv",
     "save_netcdf",
@@ -264,6 +268,7 @@ class JsonFileMixin:
         return cls.from_dict(read_json_file(path, cls.json_what))
 
 
+from .column_map import ColumnMap, read_column_map, resolve_column_map, shipped_maps  # noqa: E402
 from .csv import read_csv, write_csv  # noqa: E402  (atomic_output must exist first)
 from .netcdf import load_netcdf, save_netcdf  # noqa: E402
 from .plausibility import (BAD_SAMPLE_POLICIES, BadSample, BadSampleWarning, PlausibilityLimits,  # noqa: E402
@@ -325,7 +330,7 @@ def read_recording(path: str | Path, *, bad_samples: str | None = None, **kw: An
 
 
 def read_trace(path: str | Path, axis_name: str = "x", *, fs: float | None = None, resample: float | None = None,
-               assume_si: bool = False, bad_samples: str | None = None):
+               assume_si: bool = False, bad_samples: str | None = None, columns: Any = None):
     """Read a drive-signal trace as the commands do: CSV options only for CSV files.
 
     Parameters
@@ -343,15 +348,21 @@ def read_trace(path: str | Path, axis_name: str = "x", *, fs: float | None = Non
     bad_samples : {"refuse", "repair", "off"}, optional
         ``--bad-samples``: None refuses impossible samples of CSV traces and leaves .nc/.xml unchecked;
         given, it applies to every format.
+    columns : str, Path or ColumnMap, optional
+        ``--columns``: the CSV export's column map (a file or a shipped map's name,
+        :mod:`drivesense.io.column_map`).
 
     Returns
     -------
     Recording
     """
     if Path(path).suffix.lower() != ".csv":
+        if columns is not None:
+            raise ConfigError(f"{path}: --columns maps the columns of CSV exports; this file is not a CSV")
         return read_recording(path, bad_samples=bad_samples)
+    kw = {"column_map": resolve_column_map(columns)} if columns is not None else {}
     return read_recording(path, axis=axis_name, fs=fs, resample=resample, assume_si=assume_si,
-                          bad_samples=bad_samples)
+                          bad_samples=bad_samples, **kw)
 
 
 def write_recording(recording, path: str | Path, **kw: Any) -> Path:

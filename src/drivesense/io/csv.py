@@ -44,6 +44,7 @@ import numpy as np
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
 from ..metadata import meta_to_json
+from .column_map import ColumnMap
 from .plausibility import PlausibilityLimits, check_channels, check_policy, enforce_policy, repaired_meta
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -178,13 +179,14 @@ def _lines(path: Path) -> list[str]:
     return _decode(path.read_bytes()).splitlines()
 
 
-def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str) -> np.ndarray:
-    """All data rows as a float array (n_rows, n_cols); errors name line and column."""
+def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str,
+                  usecols: list[int] | None = None) -> np.ndarray:
+    """The data rows as a float array (n_rows, n_cols, or the columns `usecols`); errors name line and column."""
     try:  # Latin-1 never fails to decode; numbers are ASCII anyway
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", "loadtxt: input contained no data")
             return np.loadtxt(path, delimiter=delim, comments="#", skiprows=header_lineno,
-                              dtype=np.float64, ndmin=2, encoding="latin-1")
+                              dtype=np.float64, ndmin=2, encoding="latin-1", usecols=usecols)
     except ValueError as exc:
         first_error = str(exc)
     lines = _lines(path)
@@ -193,7 +195,9 @@ def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str)
         if len(cells) != len(header):
             raise InvalidSignalError(f"{path.name}, line {lineno}: {len(cells)} cells, but the "
                                      f"header has {len(header)} columns")
-        for col, cell in zip(header, cells):
+        for k, (col, cell) in enumerate(zip(header, cells)):
+            if usecols is not None and k not in usecols:
+                continue
             try:
                 float(cell)
             except ValueError:
@@ -206,7 +210,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
              fs: float | None = None, rel_tol: float = 1e-3,
              meta: Mapping | None = None, assume_si: bool = False,
              resample: float | None = None, bad_samples: str = "refuse",
-             limits: PlausibilityLimits | None = None) -> Recording:
+             limits: PlausibilityLimits | None = None, column_map: ColumnMap | None = None) -> Recording:
     """Read a CSV file with a ``name [unit]`` header into a Recording (SI).
 
     Parameters
@@ -247,6 +251,11 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     limits : PlausibilityLimits, optional
         Thresholds of the plausibility check (default
         :class:`~drivesense.io.plausibility.PlausibilityLimits`).
+    column_map : ColumnMap, optional
+        The export's columns (``--columns MAP.toml``, :mod:`drivesense.io.column_map`):
+        channel, unit, scale and sign per column; columns it does not name are
+        left out (listed in the provenance).  Its ``resample_hz`` applies unless
+        `resample` or `fs` is given.
 
     Returns
     -------
@@ -291,18 +300,29 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
     header_lineno, header_line, file_meta = _find_header(path)
     delim = max([",", ";", "\t"], key=header_line.count)
     header = [c.strip() for c in next(_csv.reader([header_line], delimiter=delim))]
+    left_out: list[str] = []
+    if column_map is not None:
+        column_map.check_header(header, path.name)
+        if resample is None and fs is None and column_map.resample_hz is not None:
+            resample = check_fs(column_map.resample_hz)
 
     # --- columns: names, units, conversions (checked before the data are parsed)
-    columns: list[tuple[str, str, _units.UnitInfo]] = []  # (canonical name, header, unit)
+    columns: list[tuple[int, str, str, _units.UnitInfo, float]] = []  # (file column, name, header, unit, factor)
     seen: dict[str, str] = {}
     renamed, converted, no_unit = [], [], []
     time_col = None
     for j, cell in enumerate(header):
         m = _HEADER_RE.match(cell)
         raw, unit = (m.group(1).strip(), m.group(2).strip()) if m else (cell, None)
+        spec = column_map.lookup(cell) if column_map is not None else None
+        if column_map is not None and spec is None:
+            left_out.append(cell or f"(column {j + 1}, no name)")
+            continue
         if not raw:
             raise ConfigError(f"{path.name}: column {j + 1} ({cell!r}) has no name")
-        name = mapping.get(raw, raw)
+        name = spec.channel if spec is not None else mapping.get(raw, raw)
+        if spec is not None:
+            unit = spec.unit
         if name.lower() == "time":
             name = "time"
         elif name in BARE_AXIS_CHANNELS:
@@ -325,8 +345,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
             converted.append(f"{name} {unit}->{_units.SI_UNITS[info.quantity]}")
         if name == "time":
             time_col = j
-        columns.append((name, cell, info))
-    if all(c[0] == "time" for c in columns):
+        columns.append((j, name, cell, info, spec.factor if spec is not None else 1.0))
+    if all(c[1] == "time" for c in columns):
         raise InvalidSignalError(f"{path.name}: no channel columns (header: {header_line!r})")
     if no_unit and not assume_si:
         raise UnitError(f"{path.name}: column(s) {', '.join(repr(c) for c in no_unit)} have no unit: give units "
@@ -340,17 +360,20 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
                           f"(columns: {', '.join(header)})")
 
     # --- data
-    values = _parse_values(path, header_lineno, header, delim)
+    usecols = [c[0] for c in columns] if column_map is not None else None
+    values = _parse_values(path, header_lineno, header, delim, usecols)
     if values.size == 0:
         raise InvalidSignalError(f"{path.name}: no data rows after the header "
                                  f"(line {header_lineno})")
-    if values.shape[1] != len(header):
+    if usecols is not None:
+        columns = [(k, *c[1:]) for k, c in enumerate(columns)]
+    elif values.shape[1] != len(header):
         raise InvalidSignalError(f"{path.name}: data rows have {values.shape[1]} cells, the "
                                  f"header has {len(header)} columns")
 
     channels, si_units, file_units = {}, {}, {}
-    for j, (name, cell, info) in enumerate(columns):
-        col = values[:, j] * info.factor if info.factor != 1.0 else values[:, j].copy()
+    for j, name, cell, info, factor in columns:
+        col = values[:, j] * (info.factor * factor) if info.factor * factor != 1.0 else values[:, j].copy()
         bad = np.flatnonzero(~np.isfinite(col))
         if bad.size and name != "time" and bad_samples != "repair":
             raise InvalidSignalError(
@@ -398,7 +421,12 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
         t0 = 0.0
         timebase = f"fs={float(fs):.12g} Hz given (no time column)"
 
-    parts = ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
+    parts = ([f"column map {column_map.name}" + (f" ({column_map.description})" if column_map.description else "")
+              + (f", left out {', '.join(left_out)}" if left_out else "")
+              + "".join(f"; {c.source}: scale {c.scale:g}, sign {c.sign:+d}" + (f" ({c.note})" if c.note else "")
+                        for c in column_map.columns if c.factor != 1.0 or c.note)]
+             if column_map is not None else []) + \
+            ([f"renamed {', '.join(renamed)}"] if renamed else []) + \
             ([f"converted {', '.join(converted)}"] if converted else []) + \
             ([f"no unit, SI assumed (--assume-si): {', '.join(no_unit)}"] if no_unit else []) + [timebase]
     if repaired:
