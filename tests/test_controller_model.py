@@ -123,7 +123,7 @@ def test_undetermined_terms_are_dropped_with_the_reason():
     # a term the data excite but that is not there: position (no spring in the truth) is not determined
     x = rep.model.axis("x")
     assert "position" not in [t.name for t in x.terms]
-    assert x.dropped["position"].startswith(("not determined", "indistinguishable"))
+    assert x.dropped["position"].startswith(("left out by held-out error", "indistinguishable"))
 
 
 def test_a_given_force_constant_replaces_the_calibration():

@@ -45,10 +45,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
-from drivesense.identify.least_squares import (LeastSquaresFit, residual_variance, solve_least_squares,
-                                               variance_inflation)
-from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, ControllerTerm, axis_direction,
-                                                 feature_column, friction_direction, term_unit)
+from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
+from drivesense.identify.physical_fit import AxisProblem, Constraints, fit_bounded, held_out_error, segment_ids, sign_of_c
+from drivesense.identify.term_choice import choose_terms, physical_terms, term_table
+from drivesense.identify.regression_check import compare_with_regression
+from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, axis_direction, feature_column,
+                                                 friction_direction)
 from drivesense.recording import Recording
 
 __all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "trace_axes"]
@@ -88,6 +90,11 @@ class ControllerIdentification:
         Physically doubtful results (a negative mass, ...), axes left out.
     seconds : float
         Wall time of the identification [s].
+    regression_check : dict
+        Per axis, the held-out error of the model and of the regression on the
+        calibration segments, their ratio and the method ``--per-axis auto`` takes.
+    kinematics : dict
+        The vertical axis and which axis carries which, as given.
     """
 
     model: ControllerModel
@@ -95,11 +102,14 @@ class ControllerIdentification:
     limits: list
     warnings: list = field(default_factory=list)
     seconds: float = 0.0
+    regression_check: dict = field(default_factory=dict)
+    kinematics: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """Plain types for JSON."""
         return {"model": self.model.to_dict(), "axes": self.axes, "limits": list(self.limits),
-                "warnings": list(self.warnings), "seconds": float(self.seconds)}
+                "warnings": list(self.warnings), "seconds": float(self.seconds),
+                "regression_check": self.regression_check, "kinematics": self.kinematics}
 
 
 def trace_axes(rec: Recording) -> list[str]:
@@ -303,7 +313,8 @@ def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray
 
 
 def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: float, fs: float,
-                   km: float | None, period: float | None) -> tuple[ControllerAxis, dict, list]:
+                   km: float | None, period: float | None, bounds: Mapping | None = None
+                   ) -> tuple[ControllerAxis, dict, list]:
     st = _Settings(window_s=window_s, v_eps=_velocity_noise(data.arrays[f"{axis}_velocity"]), fs=fs)
     dropped = _excitation(axis, others, data, st, fs)
     base = [n for n in ("offset", f"inertia_{axis}", "coulomb_pos", "coulomb_neg", "viscous") if n not in dropped]
@@ -334,79 +345,45 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
         else:
             dropped["ripple"] = why
     keep = [*_STRUCTURAL, f"inertia_{axis}"]
-    # collinear terms, then terms whose confidence interval includes zero, one at a time
-    while True:
-        X = _columns(names, axis, data, st)
-        vif = variance_inflation(X)
-        candidates = [(vif[i], n) for i, n in enumerate(names) if n not in keep]
-        worst = max(candidates, default=None)
-        if worst is None or worst[0] < _VIF_LIMIT:
-            break
-        names.remove(worst[1])
-        dropped[worst[1]] = f"indistinguishable from the other terms (variance inflation {worst[0]:.3g})"
-    while True:
-        fit = _fit_terms(names, axis, data, st, km)
-        se = np.sqrt(np.maximum(np.diag(fit.cov), 0.0))
-        tvals = [(abs(fit.theta[i]) / se[i] if se[i] > 0 else np.inf, n) for i, n in enumerate(names) if n not in keep]
-        weakest = min(tvals, default=None)
-        if weakest is None or weakest[0] >= 1.96:
-            break
-        i = names.index(weakest[1])
-        names.remove(weakest[1])
-        gain = km if km is not None else 1.0 / fit.theta[-1]
-        dropped[weakest[1]] = (f"not determined: {fit.theta[i] * gain:.3g} +- {1.96 * se[i] * abs(gain):.2g} "
-                               f"{term_unit(weakest[1])} includes zero")
-        if weakest[1] == "stribeck":
-            st.v_s = 0.0
-        if weakest[1].startswith("ripple") and not any(n.startswith("ripple") for n in names):
-            st.period = 0.0
-    return _physical(axis, names, fit, st, km, data, dropped)
-
-
-def _physical(axis, names, fit: LeastSquaresFit, st: _Settings, km, data: _AxisData, dropped) -> tuple[ControllerAxis, dict, list]:
-    """Coefficients in physical units (p = theta K_m) with delta-method confidence intervals."""
-    warnings = []
-    k = len(names)
-    if km is None:
-        c = fit.theta[k]
-        se_c = math.sqrt(max(fit.cov[k, k], 0.0))
-        if c == 0 or not abs(c) > 1.96 * se_c:
-            raise IdentificationError(
-                f"axis {axis}: the calibration cuts do not determine the force constant "
-                f"(1/K_m = {c:.3g} +- {1.96 * se_c:.2g} A/N); give it with --km {axis}=VALUE [N/A]")
-        K = 1.0 / c
-        K_ci = 1.96 * se_c / c ** 2
-        source = "identified from the calibration cut(s)"
-    else:
-        K, K_ci, source = float(km), 0.0, "given (--km)"
-    terms = []
-    for i, n in enumerate(names):
-        if km is None:
-            grad = np.zeros(k + 1)
-            grad[i] = K
-            grad[k] = -fit.theta[i] * K ** 2
-            var = float(grad @ fit.cov @ grad)
-        else:
-            var = K ** 2 * fit.cov[i, i]
-        terms.append(ControllerTerm(n, float(fit.theta[i] * K), float(1.96 * math.sqrt(max(var, 0.0)))))
-    mass = next(t for t in terms if t.name == f"inertia_{axis}").value
-    if mass <= 0:
-        warnings.append(f"axis {axis}: the moved mass came out {mass:.3g} kg (<= 0): the traces hardly accelerate "
-                        "the axis or its current is not in the same frame as its motion")
-    model = ControllerAxis(K_m=float(K), terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=float(K_ci),
-                           v_s=st.v_s if "stribeck" in names else 0.0,
-                           period=st.period if any(n.startswith("ripple") for n in names) else 0.0,
+    v = data.arrays[f"{axis}_velocity"]
+    sliding = data.is_cal & (np.abs(v) > max(50.0 * st.v_eps, _SLIDING_SPEED))
+    lengths = np.diff([*data.starts, data.force.size])
+    problem = AxisProblem(_columns(names, axis, data, st), data.arrays[f"{axis}_current"], data.force, data.is_cal,
+                          segment_ids(lengths, fs), list(names),
+                          use_for_c=sliding | ~data.is_cal if sliding.sum() >= 50 else None)
+    sign = math.copysign(1.0, km) if km is not None else sign_of_c(problem, list(range(len(names))))
+    cons = Constraints(axis=axis, sign=sign, fixed_c=1.0 / km if km is not None else None, **dict(bounds or {}))
+    names, ridge, shrink, mse = choose_terms(problem, cons, keep, dropped)
+    if "stribeck" not in names:
+        st.v_s = 0.0
+    if not any(n.startswith("ripple") for n in names):
+        st.period = 0.0
+    cols = [problem.names.index(n) for n in names]
+    fit = fit_bounded(problem, cols, cons, ridge=ridge, shrink=shrink)
+    K, K_ci, terms, active = physical_terms(axis, problem, fit, cons, km)
+    cal_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, cal_only=True) \
+        if len(problem.segments(True)) >= 2 else float("nan")
+    air_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, air_only=True) \
+        if len(problem.segments(False)) >= 2 else float("nan")
+    model = ControllerAxis(K_m=K, terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=K_ci, v_s=st.v_s, period=st.period,
                            x_pre=st.x_pre, hold_time=st.hold_time, dropped=dict(dropped))
-    res_a = fit.residual
-    report = {"K_m": float(K), "K_m_ci95": float(K_ci), "K_m_source": source,
-              "terms": {t.name: {"value": t.value, "ci95": t.ci95, "unit": term_unit(t.name)} for t in terms},
-              "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "x_pre_m": st.x_pre, "hold_time_s": st.hold_time,
-              "dropped": dict(dropped),
+    residual = problem.y - problem.X[:, cols] @ fit.theta - fit.c * problem.force
+    air = dict(zip(names, fit.theta_air))
+    report = {"K_m": K, "K_m_ci95": K_ci, "K_m_source": "identified from the calibration cut(s)" if km is None
+              else "given (--km)", "terms": term_table(terms, air, K), "active_bounds": active,
+              "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "x_pre_m": st.x_pre,
+              "hold_time_s": st.hold_time, "dropped": dict(dropped), "ridge": ridge, "shrink": shrink,
+              "held_out": {"current_rms_a": math.sqrt(mse), "force_rms_n": math.sqrt(mse) * abs(K),
+                           "calibration_force_rms_n": math.sqrt(cal_mse) * abs(K) if math.isfinite(cal_mse) else None,
+                           "air_force_rms_n": math.sqrt(air_mse) * abs(K) if math.isfinite(air_mse) else None,
+                           "samples_air_held_out": int(np.sum(~data.is_cal)),
+                           "samples_calibration_held_out": int(np.sum(data.is_cal)),
+                           "segments": len(problem.grams)},
               "samples_air": int(np.sum(~data.is_cal)), "samples_calibration": int(np.sum(data.is_cal)),
-              "residual_rms_a": {"air": _rms(res_a[~data.is_cal]), "calibration": _rms(res_a[data.is_cal])},
-              "residual_rms_n": {"air": _rms(res_a[~data.is_cal], abs(K)),
-                                 "calibration": _rms(res_a[data.is_cal], abs(K))}}
-    return model, report, warnings
+              "residual_rms_a": {"air": _rms(residual[~data.is_cal]), "calibration": _rms(residual[data.is_cal])},
+              "residual_rms_n": {"air": _rms(residual[~data.is_cal], abs(K)),
+                                 "calibration": _rms(residual[data.is_cal], abs(K))}}
+    return model, report, []
 
 
 def _rms(x: np.ndarray, scale: float = 1.0) -> float | None:
@@ -505,9 +482,61 @@ def _window_and_delay(traces, axes, channels, km, fs: float, window_s, delay_s, 
     return T, float(d)
 
 
+#: A horizontal axis's offset is a current-sensor offset: at most this fraction of its largest current.
+OFFSET_FRACTION = 0.02
+
+
+def _offset_bound(axis: str, data: _AxisData, vertical: str | None) -> dict:
+    """Bounds of a horizontal axis's offset (no weight on it) when the vertical axis is known; none otherwise."""
+    if vertical is None or axis == vertical:
+        return {}
+    limit = OFFSET_FRACTION * float(np.max(np.abs(data.arrays[f"{axis}_current"]), initial=0.0))
+    return {"lower": {"offset": -limit}, "upper": {"offset": limit},
+            "why": {"offset": f"axis {axis} is horizontal (vertical: {vertical}): no weight, only a current-sensor "
+                              f"offset within {OFFSET_FRACTION:.0%} of its largest current"}}
+
+
+def _carried_first(axes: Sequence[str], carries: Mapping | None) -> list[str]:
+    """Axes ordered so that an axis comes after every axis it carries."""
+    order: list[str] = []
+
+    def visit(a: str, path: tuple) -> None:
+        if a in order:
+            return
+        if a in path:
+            raise ConfigError(f"--carries: the kinematics form a loop ({' -> '.join((*path, a))})")
+        for b in (carries or {}).get(a, ()):
+            if b in axes:
+                visit(b, (*path, a))
+        order.append(a)
+
+    for a in axes:
+        visit(a, ())
+    return order
+
+
+def _mass_floor(axis: str, models: Mapping, carries: Mapping | None) -> dict | None:
+    """A lower bound on the axis's mass term when it came out lighter than an axis it carries, else None."""
+    carried = [b for b in (carries or {}).get(axis, ()) if b in models]
+    if not carried or axis not in models:
+        return None
+    heaviest = max(carried, key=lambda b: models[b].value(f"inertia_{b}"))
+    floor = models[heaviest].value(f"inertia_{heaviest}")
+    if models[axis].value(f"inertia_{axis}") >= floor:
+        return None
+    name = f"inertia_{axis}"
+    return {"lower": {name: floor / abs(models[axis].K_m)},
+            "why": {name: f"axis {axis} carries {heaviest}: its moved mass is at least {heaviest}'s {floor:.4g} kg"}}
+
+
+def _merge(a: Mapping, b: Mapping) -> dict:
+    return {k: {**a.get(k, {}), **b.get(k, {})} for k in ("lower", "upper", "why")}
+
+
 def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] | None = None,
                         window_s: float | None = None, delay_s: float | None = None,
-                        period: Mapping[str, float] | None = None) -> ControllerIdentification:
+                        period: Mapping[str, float] | None = None, vertical: str | None = None,
+                        carries: Mapping[str, Sequence[str]] | None = None) -> ControllerIdentification:
     """Identify a :class:`~drivesense.machine.controller_model.ControllerModel` from controller traces.
 
     Parameters
@@ -530,6 +559,13 @@ def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] 
     period : mapping of str to float, optional
         Spatial period of an axis's position-periodic terms [m] (e.g. the
         screw lead; default: searched over 3-60 mm).
+    vertical : str, optional
+        The vertical axis (the only one carrying a weight): the other axes'
+        offsets are bounded to a current-sensor offset (:data:`OFFSET_FRACTION`
+        of their largest current).  None: every axis's offset is free.
+    carries : mapping of str to sequence of str, optional
+        Kinematics, e.g. ``{"y": ["x"]}`` (Y carries X): a carrier's moved
+        mass is bounded below by the mass of every axis it carries.
 
     Returns
     -------
@@ -548,10 +584,10 @@ def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] 
 
     # many small least-squares problems: BLAS threads only contend (50 ms instead of 2 ms per fit on 2 busy cores)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _identify(traces, km, window_s, delay_s, period)
+        return _identify(traces, km, window_s, delay_s, period, vertical, carries)
 
 
-def _identify(traces, km, window_s, delay_s, period) -> ControllerIdentification:
+def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> ControllerIdentification:
     started = time.perf_counter()
     traces = [traces] if isinstance(traces, Recording) else list(traces)
     fs, axes = _check_traces(traces)
@@ -561,6 +597,14 @@ def _identify(traces, km, window_s, delay_s, period) -> ControllerIdentification
             raise ConfigError(f"--km names axis {a!r}, which the traces lack (they have {', '.join(axes)})")
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
             raise ConfigError(f"--km {a}={value!r}: the force constant must be a nonzero number [N/A]")
+    if vertical is not None and vertical not in axes:
+        raise ConfigError(f"--vertical {vertical!r}: the traces have no such axis (they have {', '.join(axes)})")
+    for carrier, carried in (carries or {}).items():
+        bad = [b for b in (carrier, *carried) if b not in axes]
+        if bad or carrier in carried:
+            raise ConfigError(f"--carries {carrier}={'+'.join(carried)}: "
+                              + (f"no axis {', '.join(bad)} in the traces (they have {', '.join(axes)})" if bad
+                                 else "an axis cannot carry itself"))
     has_cal = any(_has_force(rec) for rec in traces)
     uncalibrated = [a for a in axes if a not in km and not any(f"force_{a}" in rec for rec in traces)]
     if uncalibrated:
@@ -572,11 +616,17 @@ def _identify(traces, km, window_s, delay_s, period) -> ControllerIdentification
     T, d = _window_and_delay(traces, axes, channels, km, fs, window_s, delay_s, has_cal)
     models, reports, warnings = {}, {}, []
     left_out = {}
-    for a in axes:
-        data = _axis_data(traces, a, channels[a], d)
+    datas = {a: _axis_data(traces, a, channels[a], d) for a in axes}
+    bounds = {a: _offset_bound(a, datas[a], vertical) for a in axes}
+    for a in _carried_first(axes, carries):
         others = [b for b in axes if b != a]
         try:
-            models[a], reports[a], warn = _identify_axis(a, others, data, T, fs, km.get(a), (period or {}).get(a))
+            models[a], reports[a], warn = _identify_axis(a, others, datas[a], T, fs, km.get(a), (period or {}).get(a),
+                                                         bounds[a])
+            floor = _mass_floor(a, models, carries)
+            if floor is not None:       # lighter than an axis it carries: again, with that axis's mass as its floor
+                models[a], reports[a], warn = _identify_axis(a, others, datas[a], T, fs, km.get(a),
+                                                             (period or {}).get(a), _merge(bounds[a], floor))
         except IdentificationError as exc:      # one axis without a force constant does not sink the others
             left_out[a] = str(exc)
             continue
@@ -584,9 +634,14 @@ def _identify(traces, km, window_s, delay_s, period) -> ControllerIdentification
     if not models:
         raise IdentificationError("; ".join(left_out.values()))
     warnings.extend(f"axis {a} left out of the model: {why}" for a, why in left_out.items())
+    check = compare_with_regression(traces, list(models), datas, reports, fs) if has_cal else None
     # the traces' own declared delay (meta nc_delay_s) is added to the latency by the estimator: keep the rest
     declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if _has_force(rec)), default=0.0)
     model = ControllerModel(axes=models, window_s=float(T), delay_s=max(float(d / fs) - declared, 0.0),
-                            rate_hz=float(fs))
+                            rate_hz=float(fs), regression=check.regression if check else None,
+                            choice=check.choice if check else {})
     return ControllerIdentification(model=model, axes=reports, limits=_limits(fs, T, models), warnings=warnings,
-                                    seconds=time.perf_counter() - started)
+                                    seconds=time.perf_counter() - started,
+                                    regression_check=check.report if check else {},
+                                    kinematics={"vertical": vertical, "carries": {k: list(v) for k, v in
+                                                                                  (carries or {}).items()}})

@@ -62,6 +62,7 @@ import json
 
 from drivesense.errors import ConfigError
 from drivesense.machine.controller_model import ControllerAxis, ControllerModel, term_unit
+from drivesense.machine.regression_model import RegressionModel
 from drivesense.machine.linear_motor import AXES, LinearMotorAxis, ThreeAxisModel
 
 __all__ = ["read_axes_file", "write_axes_file"]
@@ -129,7 +130,8 @@ def _read_controller(path: Path, data: dict) -> ControllerModel:
     for k in scalars:
         if isinstance(data[k], bool) or not isinstance(data[k], (int, float)):
             raise ConfigError(f"axes file '{path}': {k} must be a number, got {data[k]!r}")
-    tables = {k: v for k, v in data.items() if k not in (*scalars, "model")}
+    special = ("regression", "choice")
+    tables = {k: v for k, v in data.items() if k not in (*scalars, "model", *special)}
     if not tables:
         raise ConfigError(f"axes file '{path}': no axis table (e.g. [x])")
     axes = {}
@@ -137,8 +139,16 @@ def _read_controller(path: Path, data: dict) -> ControllerModel:
         if not isinstance(table, dict):
             raise ConfigError(f"axes file '{path}': unknown key {name!r} (axes are tables, e.g. [x])")
         axes[name] = ControllerAxis.from_dict(table, source=f"axes file '{path}' [{name}]")
-    return ControllerModel(axes=axes, window_s=float(data["window_s"]), delay_s=float(data["delay_s"]),
-                           rate_hz=float(data["rate_hz"]))
+    regression = (RegressionModel.from_dict(data["regression"], source=f"axes file '{path}' [regression]")
+                  if "regression" in data else None)
+    choice = data.get("choice", {})
+    if not isinstance(choice, dict):
+        raise ConfigError(f"axes file '{path}': 'choice' must be a table of axis = \"model\" | \"regression\"")
+    try:
+        return ControllerModel(axes=axes, window_s=float(data["window_s"]), delay_s=float(data["delay_s"]),
+                               rate_hz=float(data["rate_hz"]), regression=regression, choice=dict(choice))
+    except ConfigError as exc:
+        raise ConfigError(f"axes file '{path}': {exc}") from None
 
 
 def _controller_lines(model: ControllerModel) -> list[str]:
@@ -159,6 +169,16 @@ def _controller_lines(model: ControllerModel) -> list[str]:
         if ax.dropped:
             lines += ["", f"[{name}.dropped]  # terms the data did not determine, and why"]
             lines += [f"{k} = {json.dumps(str(v), ensure_ascii=False)}" for k, v in ax.dropped.items()]
+    if model.regression is not None:
+        reg = model.regression
+        lines += ["", "[regression]  # least squares of each force on these regressors, fitted on the same "
+                      "calibration cuts (estimate --method regression)",
+                  "features = [" + ", ".join(json.dumps(f) for f in reg.features) + "]",
+                  "", "[regression.weights]  # N per unit of each regressor (SI)"]
+        lines += [f"{a} = [" + ", ".join(repr(float(w)) for w in ws) + "]" for a, ws in reg.weights.items()]
+    if model.choice:
+        lines += ["", "[choice]  # per axis, the smaller held-out error (estimate --per-axis auto)"]
+        lines += [f"{a} = {json.dumps(how)}" for a, how in model.choice.items()]
     return lines
 
 

@@ -66,6 +66,7 @@ import numpy as np
 
 from drivesense.errors import ConfigError, MissingChannelError
 from drivesense.machine.presliding import carried_presliding_direction
+from drivesense.machine.regression_model import RegressionModel
 
 __all__ = ["ControllerTerm", "ControllerAxis", "ControllerModel", "TERM_UNITS", "term_unit",
            "friction_direction", "axis_direction", "feature_column", "features_needed"]
@@ -397,12 +398,20 @@ class ControllerModel:
         (the estimate's latency).
     rate_hz : float
         Trace rate the model was identified at [Hz].
+    regression : RegressionModel, optional
+        The regression fitted on the same calibration cuts (``identify nc``'s
+        built-in check; ``estimate --method regression`` and ``--per-axis auto``).
+    choice : dict of str to str
+        Per axis ``"model"`` or ``"regression"``: the smaller held-out error
+        (what ``--per-axis auto`` takes; empty: the model everywhere).
     """
 
     axes: dict
     window_s: float
     delay_s: float
     rate_hz: float
+    regression: RegressionModel | None = None
+    choice: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.axes or not all(isinstance(a, ControllerAxis) for a in self.axes.values()):
@@ -411,6 +420,13 @@ class ControllerModel:
                               ("rate_hz", self.rate_hz, 1e-9)):
             if not (math.isfinite(val) and val >= low):
                 raise ConfigError(f"ControllerModel {key} must be >= {low:g}, got {val!r}")
+        for a, how in self.choice.items():
+            if a not in self.axes or how not in ("model", "regression"):
+                raise ConfigError(f"ControllerModel choice {a} = {how!r}: expected an axis of the model and "
+                                  "'model' or 'regression'")
+            if how == "regression" and (self.regression is None or a not in self.regression.weights):
+                raise ConfigError(f"ControllerModel choice {a} = 'regression' but the model holds no regression "
+                                  f"of axis {a}")
 
     def axis(self, name: str) -> ControllerAxis:
         """The model of axis ``name``.
@@ -503,6 +519,9 @@ class ControllerModel:
         return ax.K_m * current - self.resisting_force(name, arrays, state)
 
     def to_dict(self) -> dict:
-        """Plain types (SI): ``window_s``, ``delay_s``, ``rate_hz`` and one table per axis."""
+        """Plain types (SI): ``window_s``, ``delay_s``, ``rate_hz``, one table per axis, and the regression
+        and per-axis choice where there are."""
         return {"window_s": float(self.window_s), "delay_s": float(self.delay_s), "rate_hz": float(self.rate_hz),
-                "axes": {a: ax.to_dict() for a, ax in self.axes.items()}}
+                "axes": {a: ax.to_dict() for a, ax in self.axes.items()},
+                **({"regression": self.regression.to_dict()} if self.regression is not None else {}),
+                **({"choice": dict(self.choice)} if self.choice else {})}
