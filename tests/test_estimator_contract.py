@@ -1,4 +1,4 @@
-"""Conformance of all seven methods to the one estimator contract (drivesense.estimate.base).
+"""Conformance of all eight methods to the one estimator contract (drivesense.estimate.base).
 
 Every registered method, built through ``ds.estimate.make``: batch = stream for
 any chunking (to the bit), Recording in -> Recording out and mapping in -> dict
@@ -20,10 +20,10 @@ from drivesense.learn.kernel import LSTMWeights
 from drivesense.learn.model import LearnedModel, TrainConfig
 from drivesense.recording import Recording
 
-ALL = ("current", "rigid", "medob", "vibration", "model", "lstm", "hybrid")
+ALL = ("current", "rigid", "medob", "vibration", "model", "regression", "lstm", "hybrid")
 
 
-def test_registry_lists_the_seven_methods():
+def test_registry_lists_the_eight_methods():
     assert ds.estimate.available() == ALL
     assert ds.estimate.available("ballscrew") == ALL[:4]
     assert ds.estimate.available("linear") == ALL[4:]
@@ -33,6 +33,8 @@ def test_registry_lists_the_seven_methods():
         ds.estimate.make("vibration", axes=None)
     with pytest.raises(ConfigError, match="needs identified axes"):
         ds.estimate.make("model", axes=ds.table1_axis())
+    with pytest.raises(ConfigError, match="needs the AXES.toml of 'identify nc'"):
+        ds.estimate.make("regression", axes=ds.table1_axis())
 
 
 def _random_model(kind: str, runs, axes) -> LearnedModel:
@@ -67,6 +69,9 @@ def cases(feed_scenario, linear_air_moves):
     axes = ds.identify_axes(list(linear_air_moves))
     trace = simulate_process("pocket_ccw", 2e-3, 2e-3, 500 / 60e3, 3500, seed=3).slice_time(None, 3.0)
     out["model"] = (ds.estimate.make("model", axes=axes), trace)
+    from drivesense.machine.regression_model import RegressionModel
+
+    out["regression"] = (ds.estimate.make("regression", axes=RegressionModel.fit([trace], ("x", "y", "z"))), trace)
     for kind in ("lstm", "hybrid"):
         out[kind] = (ds.estimate.make(kind, model=_random_model(kind, [trace], axes)), trace)
     return out

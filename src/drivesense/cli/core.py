@@ -10,9 +10,9 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, accuracy_table, build_estimator,
-                                   check_recording_suffix, console, friendly, parse_window, progress_bar,
-                                   save_recording, trace_reader, warn, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, ColumnsOpt, FsOpt, ResampleOpt, accuracy_table,
+                                   build_estimator, check_recording_suffix, console, friendly, parse_window,
+                                   progress_bar, save_recording, show_warnings, trace_reader, warn, write_json)
 
 __all__ = ["register"]
 
@@ -87,6 +87,9 @@ def simulate(
                      "KIND@TIME[:VALUE] with TIME [s]: breakage@6 (flute 0), chipping@6:0.4 (edge loss), "
                      "collision@6.5:500 or overload@6.5:300 (force [N]), feed_override@5:0.6 (factor), "
                      "missing_tool@0.  Repeatable.")] = None,
+    columns: Annotated[Optional[str], typer.Option(
+        "--columns", metavar="MAP.toml|NAME", help="Write the .csv as this controller export (its column names, "
+                                                   "units, scales and signs), e.g. kit-dmc60h.")] = None,
 ) -> None:
     """Simulate one scenario to a file: drive signals plus the true force (ball-screw stage or linear-motor machine)."""
     from dataclasses import replace
@@ -117,6 +120,13 @@ def simulate(
         raise ConfigError(f"{', '.join(k for k, v in given.items() if v is not None)}: cutting parameters of the "
                           "linear machine's processes (groove_*, side_*, pocket_ccw, pocket_cw, ramp_-y+z), "
                           f"not of {scenario!r}")
+    column_map = None
+    if columns is not None:
+        from drivesense.io import resolve_column_map
+
+        if out is not None and out.suffix.lower() != ".csv":
+            raise ConfigError(f"--columns writes a CSV export: give --out FILE.csv, not '{out}'")
+        column_map = resolve_column_map(columns)
     if scenario == AIR_MOVES and out.suffix.lower() in (".nc", ".csv"):
         raise ConfigError(f"{AIR_MOVES} writes 9 recordings: give --out a folder (one .nc file per move), "
                           f"not '{out}'")
@@ -127,7 +137,12 @@ def simulate(
             save_recording(rec, out / f"{rec.name}.nc", parents=True)
         console.print(f"wrote {len(recs)} air moves to {out}/: {', '.join(r.name for r in recs)}", markup=False)
         return
-    save_recording(recs[0], out)
+    if column_map is not None:
+        from drivesense.io import write_csv
+
+        write_csv(recs[0], out, column_map=column_map)
+    else:
+        save_recording(recs[0], out)
     console.print(f"wrote {out}: {recs[0]!r}", markup=False)
 
 
@@ -166,8 +181,8 @@ def estimate(
     out: Annotated[Path, typer.Option("--out", help="Output .csv (time [s], force_x [N]; model: force_x/y/z) or "
                                                     ".nc (netCDF, lossless): the format follows the suffix.")],
     axis_file: Annotated[Optional[Path], typer.Option("--axis", help="AXIS.toml with [axis] and [signal].")] = None,
-    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration (--axis); model (--axes); "
-                                              "lstm | hybrid (--model)")] = "vibration",
+    method: Annotated[str, typer.Option(help="current | rigid | medob | vibration (--axis); model | regression "
+                                              "(--axes); lstm | hybrid (--model)")] = "vibration",
     idle: Annotated[Optional[list[Path]], typer.Option(help="Idle (air-cut) run(s) for the friction map.")] = None,
     tare: Annotated[Optional[str], typer.Option(help="START:END [s] of a tare window (standing axis).")] = None,
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write a JSON summary here.")] = None,
@@ -179,19 +194,33 @@ def estimate(
     axis_name: Annotated[str, typer.Option("--axis-name", help="Axis letter of the channels.")] = "x",
     axes_file: Annotated[Optional[Path], typer.Option("--axes", help="AXES.toml (linear-motor X/Y/Z) for --method model.")] = None,
     model_dir: Annotated[Optional[Path], typer.Option("--model", help="Trained model folder for --method lstm|hybrid.")] = None,
+    per_axis: Annotated[str, typer.Option(
+        "--per-axis", metavar="model|auto",
+        help="--method model with an AXES.toml of 'identify nc': auto takes, on each axis where the identification "
+             "found the regression better on held-out data, that regression (named per axis in the JSON).")] = "model",
     assume_si: AssumeSiOpt = False,
     fs: FsOpt = None,
     resample: ResampleOpt = None,
     bad_samples: BadSamplesOpt = None,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Estimate the process force from a trace of current reference, motor angle and table position."""
     from drivesense.errors import ConfigError
     from drivesense.estimate.design import lowpass_sos
 
     check_recording_suffix(out)
-    read_trace = trace_reader(fs, resample, assume_si, bad_samples)
+    if per_axis not in ("model", "auto"):
+        raise ConfigError(f"--per-axis {per_axis!r}: choose model or auto")
+    if per_axis == "auto" and method != "model":
+        raise ConfigError(f"--per-axis auto chooses between the model and its regression: it needs --method model, "
+                          f"not {method}")
+    read_trace = trace_reader(fs, resample, assume_si, bad_samples, columns)
     est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                           axis_name=axis_name)
+    if per_axis == "auto":
+        from drivesense.estimate import make
+
+        est = make("model", axes=est.model, per_axis="auto")
     zoom = parse_window(plot_window, "--plot-window") if plot_window is not None else None
     if zoom is not None and plot is None:
         raise ConfigError("--plot-window sets the close-up of --plot PNG: give --plot too")
@@ -321,10 +350,34 @@ def bench(
     kind: Annotated[str, typer.Argument(help="accuracy | speed | identify | learn | wear | io | nc | events | "
                                               "monitor | fleet | all")] = "all",
     json_path: Annotated[Optional[Path], typer.Option("--json", help="Write the bench JSON here.")] = None,
+    real: Annotated[Optional[Path], typer.Option(
+        "--real", metavar="DIR", help="bench nc on real traces: a folder of one machine's cuts and air cuts "
+                                      "(*aircut* in the name); identify on one cut and its air cut, score every "
+                                      "other cut beside the regression.")] = None,
+    columns: ColumnsOpt = None,
+    calibration: Annotated[Optional[str], typer.Option(
+        "--calibration", metavar="FILE", help="--real: the calibration cut's file name (default: the first cut).")] = None,
+    air: Annotated[Optional[str], typer.Option(
+        "--air", metavar="FILE", help="--real: the air cut's file name (default: the one sharing the longest name "
+                                      "prefix with the calibration cut).")] = None,
+    vertical: Annotated[Optional[str], typer.Option("--vertical", metavar="AXIS",
+                                                    help="--real: the vertical axis (identify nc --vertical).")] = None,
+    carries: Annotated[Optional[str], typer.Option("--carries", metavar="AXIS=AXIS",
+                                                   help="--real: kinematics (identify nc --carries).")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
     from drivesense.bench import run_bench
+    from drivesense.errors import ConfigError
 
+    real_options = {"--columns": columns, "--calibration": calibration, "--air": air, "--vertical": vertical,
+                    "--carries": carries}
+    if real is None and any(v is not None for v in real_options.values()):
+        given = [k for k, v in real_options.items() if v is not None]
+        raise ConfigError(f"{', '.join(given)} apply to real traces: give --real DIR (with bench nc)")
+    if real is not None:
+        if kind != "nc":
+            raise ConfigError(f"--real DIR runs bench nc on real traces; it does not apply to bench {kind}")
+        return _real_nc_bench(real, columns, calibration, air, vertical, carries, json_path)
     with progress_bar() as progress:
         # steps per part vary (e.g. io runs more with a PostgreSQL server): count them, no fixed total
         task = progress.add_task(f"bench {kind}", total=None)
@@ -357,6 +410,37 @@ def bench(
         if part in result and isinstance(result[part], dict):
             _print_targets(part, result[part])
     write_json(json_path, result)
+
+
+def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, json_path) -> None:
+    """``bench nc --real DIR``: the per-file table and the targets."""
+    from drivesense.bench.machine import machine_info
+    from drivesense.bench.nc_real import run_real_nc_bench
+    from drivesense.cli.identify_nc import parse_carries
+
+    with progress_bar() as progress, show_warnings():
+        task = progress.add_task(f"bench nc --real {folder.name}", total=None)
+        result = run_real_nc_bench(folder, columns=columns, calibration=calibration, air=air, vertical=vertical,
+                                   carries=parse_carries(carries) if carries else None,
+                                   progress=lambda label: progress.advance(task))
+    res = result["nc_real"]
+    table = Table(title=escape(f"NRMSE on held-out cuts: identified on {res['calibration']} + {res['air']}"),
+                  box=box.SIMPLE)
+    table.add_column("file")
+    for a in ("x", "y", "z"):
+        for m in ("regression", "model", "auto"):
+            table.add_column(f"{a} {m}", justify="right")
+    for row in res["files"]:
+        table.add_row(escape(row["file"]), *(f"{row['nrmse'][m][a] * 100:.1f} %" for a in ("x", "y", "z")
+                                             for m in ("regression", "model", "auto")))
+    console.print(table)
+    for m in ("model", "auto"):
+        summary = res["summary"][m]
+        console.print(f"{m} / regression: mean {summary['mean_ratio']:.2f}x, worst {summary['worst_ratio']:.2f}x, per "
+                      f"axis {', '.join(f'{a} {v:.2f}x' for a, v in summary['per_axis_mean_ratio'].items())}",
+                      markup=False)
+    _print_targets("nc --real", res)
+    write_json(json_path, {"machine": machine_info(), **result})
 
 
 def _print_targets(part: str, section: dict) -> None:

@@ -9,10 +9,10 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, FsOpt, ResampleOpt, console, friendly, show_warnings,
-                                   trace_reader, warn, write_json)
+from drivesense.cli.common import (AssumeSiOpt, BadSamplesOpt, ColumnsOpt, FsOpt, ResampleOpt, console, friendly,
+                                   show_warnings, trace_reader, warn, write_json)
 
-__all__ = ["register", "parse_axis_values"]
+__all__ = ["register", "parse_axis_values", "parse_carries"]
 
 
 def parse_axis_values(text: str, option: str, unit: str) -> dict[str, float]:
@@ -44,6 +44,28 @@ def parse_axis_values(text: str, option: str, unit: str) -> dict[str, float]:
     return out
 
 
+def parse_carries(text: str) -> dict[str, list[str]]:
+    """Parse ``--carries y=x,z=x+y`` into ``{"y": ["x"], "z": ["x", "y"]}``.
+
+    Parameters
+    ----------
+    text : str
+        The option's value.
+    """
+    from drivesense.errors import ConfigError
+
+    out: dict[str, list[str]] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        carrier, sep, carried = item.partition("=")
+        names = [c.strip() for c in carried.split("+") if c.strip()]
+        if not sep or not carrier.strip().isidentifier() or not names or not all(n.isidentifier() for n in names):
+            raise ConfigError(f"--carries item {item!r}: expected AXIS=AXIS[+AXIS], e.g. y=x (Y carries X)")
+        out.setdefault(carrier.strip(), []).extend(names)
+    if not out:
+        raise ConfigError("--carries: give AXIS=AXIS[+AXIS] items separated by commas, e.g. y=x")
+    return out
+
+
 def _fmt(value: float, ci: float) -> str:
     return f"{value:.4g} +- {ci:.2g}"
 
@@ -53,6 +75,17 @@ def identify_nc(
         help="Controller traces (.csv, .nc or .xml) at one rate >= 25 Hz: air cuts (no force columns) and "
              "calibration cuts (with force_x/y/z from a dynamometer).")],
     out: Annotated[Path, typer.Option("--out", help="AXES.toml to write (feeds 'estimate --method model --axes').")],
+    air: Annotated[Optional[list[Path]], typer.Option(
+        "--air", help="An air cut (the program run without material), repeatable: its force columns, if the "
+                      "dynamometer was logging, are left out (no process force there).")] = None,
+    vertical: Annotated[Optional[str], typer.Option(
+        "--vertical", metavar="AXIS", help="The vertical axis, the only one carrying a weight (e.g. z on a vertical, "
+                                           "y on a horizontal machining centre); the others' offsets are bounded "
+                                           "to a current-sensor offset.")] = None,
+    carries: Annotated[Optional[str], typer.Option(
+        "--carries", metavar="AXIS=AXIS[+AXIS],...",
+        help="Kinematics, e.g. y=x (Y carries X): a carrier's moved mass is at least that of what it "
+             "carries.")] = None,
     km: Annotated[Optional[str], typer.Option(
         "--km", help="Force constants of some axes as logged, sign included, e.g. x=-520,z=610 [N/A] "
                      "(default: identified from the calibration cuts).")] = None,
@@ -64,16 +97,24 @@ def identify_nc(
     fs: FsOpt = None,
     resample: ResampleOpt = None,
     bad_samples: BadSamplesOpt = None,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Identify force constants, masses, weight, friction and ripple from a calibration cut and air cuts."""
     from drivesense.identify.controller import identify_controller
     from drivesense.io.axes_file import write_axes_file
 
-    read = trace_reader(fs, resample, assume_si, bad_samples)
+    kinematics = parse_carries(carries) if carries else None
+    read = trace_reader(fs, resample, assume_si, bad_samples, columns)
     recs = [read(p) for p in traces]
+    for p in air or []:
+        rec = read(p)
+        forces = [c for c in rec.channels if c.startswith("force_")]
+        recs.append(rec.select(*[c for c in rec.channels if c not in forces]) if forces else rec)
+    traces = [*traces, *(air or [])]
     with show_warnings():
         report = identify_controller(recs, km=parse_axis_values(km, "--km", "N/A") if km else None,
-                                     period=parse_axis_values(period, "--period", "m") if period else None)
+                                     period=parse_axis_values(period, "--period", "m") if period else None,
+                                     vertical=vertical, carries=kinematics)
     model = report.model
     n_cal = sum(any(c.startswith("force_") for c in r.channels) for r in recs)
     write_axes_file(out, model, header=f"identified by 'drivesense identify nc' from {n_cal} calibration cut(s) and "
@@ -97,6 +138,28 @@ def identify_nc(
     table.caption = (f"logging window {model.window_s * 1e3:.3g} ms, delay behind the force {model.delay_s * 1e3:.3g} ms; "
                      f"{report.seconds:.2f} s")
     console.print(table)
+    active = [(a, n, why) for a in axes for n, why in report.axes[a].get("active_bounds", {}).items()]
+    if active:
+        bounds = Table(title="Terms at a physical bound")
+        for col in ("axis", "term", "why"):
+            bounds.add_column(col)
+        for a, n, why in active:
+            bounds.add_row(a, n, escape(why))
+        console.print(bounds)
+    if report.regression_check:
+        check = Table(title="Held-out error against the regression (calibration segments and air cuts)")
+        for col in ("axis", "model NRMSE", "regression NRMSE", "ratio", "--per-axis auto"):
+            check.add_column(col, justify="right" if col != "axis" else "left")
+        for a, row in report.regression_check.items():
+            if "ratio" not in row:
+                check.add_row(a, "-", "-", "-", escape(row.get("note", "")))
+                continue
+            check.add_row(a, f"{row['model_nrmse'] * 100:.1f} %", f"{row['regression_nrmse'] * 100:.1f} %",
+                          f"{row['ratio']:.2f}x", row["choice"])
+        console.print(check)
+        for a, row in report.regression_check.items():
+            if row.get("choice") == "regression":
+                warn(f"axis {a}: {row['note']}")
     dropped = Table(title="Terms the data did not determine")
     dropped.add_column("axis")
     dropped.add_column("term")

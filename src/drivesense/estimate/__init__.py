@@ -7,7 +7,7 @@ live in :mod:`drivesense.learn` and register here when it is imported.
 
 >>> import drivesense as ds
 >>> ds.estimate.available()
-('current', 'rigid', 'medob', 'vibration', 'model', 'lstm', 'hybrid')
+('current', 'rigid', 'medob', 'vibration', 'model', 'regression', 'lstm', 'hybrid')
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from drivesense.estimate.friction_map import FrictionMap, build_friction_map
 from drivesense.estimate.medob import MEDOB
 from drivesense.estimate.model_based import ModelBased
 from drivesense.estimate.registry import MethodInfo, available, describe_methods, is_path, make, register
+from drivesense.estimate.regression import Regression
 from drivesense.estimate.rigid import RigidBody
 from drivesense.estimate.vibration import VibrationMode
 from drivesense.io.axes_file import read_axes_file
@@ -27,10 +28,11 @@ from drivesense.io.axis_file import read_axis_file
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.controller_model import ControllerModel
 from drivesense.machine.linear_motor import ThreeAxisModel
+from drivesense.machine.regression_model import RegressionModel
 from drivesense.machine.signal_chain import SignalParams
 
 __all__ = ["ForceEstimator", "ForceStream", "BallScrewEstimator", "CurrentOnly", "RigidBody", "MEDOB",
-           "VibrationMode", "ModelBased", "SignalParams", "FrictionMap", "build_friction_map",
+           "VibrationMode", "ModelBased", "Regression", "SignalParams", "FrictionMap", "build_friction_map",
            "MethodInfo", "available", "make", "register", "describe_methods"]
 
 
@@ -48,12 +50,20 @@ def _ballscrew_factory(cls: type[BallScrewEstimator]):
     return factory
 
 
-def _model_factory(*, axes, presliding: bool = True, v_eps: float = 2.0e-4) -> ModelBased:
+def _model_factory(*, axes, presliding: bool = True, v_eps: float = 2.0e-4, per_axis: str = "model") -> ModelBased:
     if is_path(axes):
         axes = read_axes_file(axes)
     if not isinstance(axes, (ThreeAxisModel, ControllerModel)):
         raise ConfigError(f"method 'model' needs identified axes (--axes AXES.toml), got {type(axes).__name__}")
-    return ModelBased(axes, presliding=presliding, v_eps=v_eps)
+    return ModelBased(axes, presliding=presliding, v_eps=v_eps, per_axis=per_axis)
+
+
+def _regression_factory(*, axes) -> Regression:
+    if is_path(axes):
+        axes = read_axes_file(axes)
+    if not isinstance(axes, (RegressionModel, ControllerModel)):
+        raise ConfigError(f"method 'regression' needs the AXES.toml of 'identify nc' (--axes), got {type(axes).__name__}")
+    return Regression(axes)
 
 
 _SUMMARIES = {
@@ -68,3 +78,7 @@ register(ModelBased.name, _model_factory, drive="linear",
          needs="--axes AXES.toml (write one with 'drivesense identify linear' or 'drivesense identify nc')",
          summary="linear-motor axis model (Eq. 2 of the third paper, presliding friction) or the controller-rate "
                  "model of any machine")
+register(Regression.name, _regression_factory, drive="linear",
+         needs="--axes AXES.toml (written by 'drivesense identify nc' from a calibration cut)",
+         summary="least squares of each force on all currents, sgn(v), v and a: the baseline identify nc "
+                 "fits beside the model")

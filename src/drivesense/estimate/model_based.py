@@ -82,13 +82,19 @@ class ModelBased(ForceEstimator):
     presliding : bool
         Use the Dahl presliding state on axes whose model has ``x_pre > 0``
         (default); False: the paper's ramped sign on every axis.
+    per_axis : {"model", "auto"}
+        ``"auto"`` (``--per-axis auto``): on each axis where ``identify nc``
+        found the regression better on held-out data (the model's ``choice``),
+        take the regression it stored beside the model; ``"model"``: the
+        physical model on every axis (default).
     """
 
     name = "model"
     drive = "linear"
 
     def __init__(self, model: ThreeAxisModel | ControllerModel | None = None, *, axes: Sequence[str] | None = None,
-                 v_eps: float = 2.0e-4, presliding: bool = True, kind: str | None = None) -> None:
+                 v_eps: float = 2.0e-4, presliding: bool = True, kind: str | None = None,
+                 per_axis: str = "model") -> None:
         if model is not None and not isinstance(model, (ThreeAxisModel, ControllerModel)):
             raise ConfigError(f"ModelBased needs a ThreeAxisModel or ControllerModel, got {type(model).__name__}")
         if kind is None:
@@ -104,6 +110,12 @@ class ModelBased(ForceEstimator):
             raise ConfigError(f"ModelBased axes must be some of {', '.join(known)}, got {list(axes)!r}")
         if not (isinstance(v_eps, (int, float)) and v_eps >= 0):
             raise ConfigError(f"ModelBased 'v_eps' must be a speed >= 0 [m/s], got {v_eps!r}")
+        if per_axis not in ("model", "auto"):
+            raise ConfigError(f"--per-axis must be 'model' or 'auto', got {per_axis!r}")
+        if per_axis == "auto" and not (isinstance(model, ControllerModel) and model.regression is not None):
+            raise ConfigError("--per-axis auto needs a controller model identified with a calibration cut "
+                              "('drivesense identify nc' stores the regression and its per-axis choice in AXES.toml)")
+        self.per_axis = per_axis
         self.model = model
         self.axes = axes
         self.v_eps = float(v_eps)
@@ -117,13 +129,22 @@ class ModelBased(ForceEstimator):
         A controller model reads only what its kept terms need.
         """
         if isinstance(self.model, ControllerModel):
-            return self.model.input_channels(self.axes)
+            physical = [a for a in self.axes if a not in self.regression_axes]
+            extra = self.model.regression.input_channels if self.regression_axes else ()
+            return tuple(dict.fromkeys((*self.model.input_channels(physical), *extra))) if physical else extra
         return tuple(f"{a}_{c}" for a in self.axes for c in MODEL_INPUTS)
 
     @property
     def output_channels(self) -> tuple[str, ...]:
         """Output channels ``force_{ax}``."""
         return tuple(f"force_{a}" for a in self.axes)
+
+    @property
+    def regression_axes(self) -> tuple[str, ...]:
+        """Axes estimated by the stored regression (``per_axis="auto"`` where the model lost on held-out data)."""
+        if self.per_axis != "auto" or not isinstance(self.model, ControllerModel):
+            return ()
+        return tuple(a for a in self.axes if self.model.choice.get(a) == "regression")
 
     def fit(self, runs: Sequence[Recording], **kwargs) -> "ModelBased":
         """Identify the model: four-step from air moves, or the controller-rate model.
@@ -183,7 +204,9 @@ class ModelBased(ForceEstimator):
         """
         model = self._require_model()
         if isinstance(model, ControllerModel):
-            return {f"force_{a}": model.process_force(a, arrays, state) for a in self.axes}
+            fallback = self.regression_axes
+            return {f"force_{a}": model.regression.predict(a, arrays) if a in fallback
+                    else model.process_force(a, arrays, state) for a in self.axes}
         out = {}
         for a in self.axes:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)
@@ -229,9 +252,10 @@ class ModelBased(ForceEstimator):
     def describe(self) -> str:
         """Eq. 2 and the friction direction used (or the controller model's terms), for the provenance."""
         if isinstance(self.model, ControllerModel):
-            kept = {a: len(self.model.axis(a).terms) for a in self.axes}
+            kept = {a: "the regression (--per-axis auto)" if a in self.regression_axes
+                    else f"{len(self.model.axis(a).terms)} terms" for a in self.axes}
             return (f"controller-rate model K_m I - sum p phi identified at {self.model.rate_hz:g} Hz "
-                    f"({', '.join(f'{a}: {n} terms' for a, n in kept.items())})")
+                    f"({', '.join(f'{a}: {n}' for a, n in kept.items())})")
         pre = [a for a in self.axes if self.uses_presliding(a)]
         label = f"presliding (Dahl) on {''.join(pre)}" if pre else f"sgn(v) ramped over {self.v_eps * 1e3:g} mm/s"
         return f"Eq. 2 with stacked masses, friction direction {label}"

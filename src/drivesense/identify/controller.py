@@ -15,24 +15,35 @@ channel: ``F = 0``) determines the ``theta_j`` (friction, masses, the weight
 and offsets, ripple) in amperes; a calibration cut (``force_<axis>`` from a
 dynamometer) adds ``c``, the force constant with the controller's sign.  No
 dedicated moves are needed: whatever the part program excites is used, and
-more moves determine more terms.  The fit is one regularised least-squares
-problem per axis; the confidence intervals account for the autocorrelation of
-the residual (effective sample size).
+more moves determine more terms.
 
-A term is kept only if the data determine it; each dropped term is reported
-with the reason:
+The model is physical by construction (:mod:`drivesense.identify.physical_fit`):
+a bounded, regularised least-squares problem per axis with one sign of
+``K_m``, masses and friction levels >= 0, the air cuts first and the
+calibration cuts shrunk towards them, and the machine's kinematics as bounds
+(:mod:`drivesense.identify.kinematics`).  Where a bound is active the report
+says which term and why.  The confidence intervals account for the
+autocorrelation of the residual (effective sample size).
+
+A candidate term is left out, with the reason, when:
 
 * *not excited* -- the traces do not move the axis that way (no reversal in
   one direction, too little travel for a ripple period, no slow motion for a
   Stribeck curve, another axis that never accelerates);
 * *indistinguishable* -- collinear with the kept terms (variance inflation);
-* *not determined* -- its 95 % confidence interval includes zero.
+* *left out by held-out error* -- the leave-one-segment-out error over the air
+  and calibration segments is no worse without it
+  (:mod:`drivesense.identify.term_choice`).
 
 The offset and the axis's own inertia are always kept.  The non-linear
 settings are chosen by the fit: the logging window (point samples or the
 trace interval), the delay of the drive channels behind the force reference
 (calibration cuts only; it becomes the estimate's latency), the Stribeck
 velocity and the ripple period (a search over spatial periods, or given).
+Beside the model, the regression every user could write is fitted on the
+same calibration cuts and both are compared on held-out data
+(:mod:`drivesense.identify.regression_check`); the per-axis winner is stored
+for ``estimate --per-axis auto``.
 """
 
 from __future__ import annotations
@@ -45,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
+from drivesense.identify.kinematics import carried_first, check_kinematics, mass_floor, merge_bounds, offset_bound
 from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
 from drivesense.identify.physical_fit import AxisProblem, Constraints, fit_bounded, held_out_error, segment_ids, sign_of_c
 from drivesense.identify.term_choice import choose_terms, physical_terms, term_table
@@ -57,11 +69,10 @@ __all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "tr
 
 #: Lowest trace rate the identification accepts [Hz].
 MIN_RATE_HZ = 25.0
-#: Terms kept whatever their confidence interval.
+#: Terms kept whatever their held-out error (with the axis's own mass).
 _STRUCTURAL = ("offset",)
 _STRIBECK_SPEEDS = (0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 20e-3)
 _PERIODS = np.geomspace(3e-3, 60e-3, 240)
-_VIF_LIMIT = 1.0e4
 #: Friction, masses and offsets from the air cuts alone, then the force constant (when both kinds are given).
 TWO_STAGE = True
 #: Speed above which an axis slides for the force constant's fit [m/s].
@@ -482,57 +493,6 @@ def _window_and_delay(traces, axes, channels, km, fs: float, window_s, delay_s, 
     return T, float(d)
 
 
-#: A horizontal axis's offset is a current-sensor offset: at most this fraction of its largest current.
-OFFSET_FRACTION = 0.02
-
-
-def _offset_bound(axis: str, data: _AxisData, vertical: str | None) -> dict:
-    """Bounds of a horizontal axis's offset (no weight on it) when the vertical axis is known; none otherwise."""
-    if vertical is None or axis == vertical:
-        return {}
-    limit = OFFSET_FRACTION * float(np.max(np.abs(data.arrays[f"{axis}_current"]), initial=0.0))
-    return {"lower": {"offset": -limit}, "upper": {"offset": limit},
-            "why": {"offset": f"axis {axis} is horizontal (vertical: {vertical}): no weight, only a current-sensor "
-                              f"offset within {OFFSET_FRACTION:.0%} of its largest current"}}
-
-
-def _carried_first(axes: Sequence[str], carries: Mapping | None) -> list[str]:
-    """Axes ordered so that an axis comes after every axis it carries."""
-    order: list[str] = []
-
-    def visit(a: str, path: tuple) -> None:
-        if a in order:
-            return
-        if a in path:
-            raise ConfigError(f"--carries: the kinematics form a loop ({' -> '.join((*path, a))})")
-        for b in (carries or {}).get(a, ()):
-            if b in axes:
-                visit(b, (*path, a))
-        order.append(a)
-
-    for a in axes:
-        visit(a, ())
-    return order
-
-
-def _mass_floor(axis: str, models: Mapping, carries: Mapping | None) -> dict | None:
-    """A lower bound on the axis's mass term when it came out lighter than an axis it carries, else None."""
-    carried = [b for b in (carries or {}).get(axis, ()) if b in models]
-    if not carried or axis not in models:
-        return None
-    heaviest = max(carried, key=lambda b: models[b].value(f"inertia_{b}"))
-    floor = models[heaviest].value(f"inertia_{heaviest}")
-    if models[axis].value(f"inertia_{axis}") >= floor:
-        return None
-    name = f"inertia_{axis}"
-    return {"lower": {name: floor / abs(models[axis].K_m)},
-            "why": {name: f"axis {axis} carries {heaviest}: its moved mass is at least {heaviest}'s {floor:.4g} kg"}}
-
-
-def _merge(a: Mapping, b: Mapping) -> dict:
-    return {k: {**a.get(k, {}), **b.get(k, {})} for k in ("lower", "upper", "why")}
-
-
 def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] | None = None,
                         window_s: float | None = None, delay_s: float | None = None,
                         period: Mapping[str, float] | None = None, vertical: str | None = None,
@@ -562,7 +522,7 @@ def identify_controller(traces: Sequence[Recording], *, km: Mapping[str, float] 
     vertical : str, optional
         The vertical axis (the only one carrying a weight): the other axes'
         offsets are bounded to a current-sensor offset (:data:`OFFSET_FRACTION`
-        of their largest current).  None: every axis's offset is free.
+        of their largest current, :mod:`drivesense.identify.kinematics`).  None: every axis's offset is free.
     carries : mapping of str to sequence of str, optional
         Kinematics, e.g. ``{"y": ["x"]}`` (Y carries X): a carrier's moved
         mass is bounded below by the mass of every axis it carries.
@@ -597,14 +557,7 @@ def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> Contr
             raise ConfigError(f"--km names axis {a!r}, which the traces lack (they have {', '.join(axes)})")
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
             raise ConfigError(f"--km {a}={value!r}: the force constant must be a nonzero number [N/A]")
-    if vertical is not None and vertical not in axes:
-        raise ConfigError(f"--vertical {vertical!r}: the traces have no such axis (they have {', '.join(axes)})")
-    for carrier, carried in (carries or {}).items():
-        bad = [b for b in (carrier, *carried) if b not in axes]
-        if bad or carrier in carried:
-            raise ConfigError(f"--carries {carrier}={'+'.join(carried)}: "
-                              + (f"no axis {', '.join(bad)} in the traces (they have {', '.join(axes)})" if bad
-                                 else "an axis cannot carry itself"))
+    check_kinematics(axes, vertical, carries)
     has_cal = any(_has_force(rec) for rec in traces)
     uncalibrated = [a for a in axes if a not in km and not any(f"force_{a}" in rec for rec in traces)]
     if uncalibrated:
@@ -617,16 +570,20 @@ def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> Contr
     models, reports, warnings = {}, {}, []
     left_out = {}
     datas = {a: _axis_data(traces, a, channels[a], d) for a in axes}
-    bounds = {a: _offset_bound(a, datas[a], vertical) for a in axes}
-    for a in _carried_first(axes, carries):
+    bounds = {a: offset_bound(a, datas[a].arrays[f"{a}_current"], vertical) for a in axes}
+    for a in carried_first(axes, carries):
         others = [b for b in axes if b != a]
         try:
             models[a], reports[a], warn = _identify_axis(a, others, datas[a], T, fs, km.get(a), (period or {}).get(a),
                                                          bounds[a])
-            floor = _mass_floor(a, models, carries)
-            if floor is not None:       # lighter than an axis it carries: again, with that axis's mass as its floor
+            extra = bounds[a]
+            for _ in range(4):      # lighter than an axis it carries: again, with that axis's mass as its floor
+                floor = mass_floor(a, models, carries, extra)
+                if floor is None:
+                    break
+                extra = merge_bounds(bounds[a], floor)
                 models[a], reports[a], warn = _identify_axis(a, others, datas[a], T, fs, km.get(a),
-                                                             (period or {}).get(a), _merge(bounds[a], floor))
+                                                             (period or {}).get(a), extra)
         except IdentificationError as exc:      # one axis without a force constant does not sink the others
             left_out[a] = str(exc)
             continue

@@ -118,7 +118,13 @@ class AxisProblem:
                                   "yy": float(yr @ yr), "Gfit": zf.T @ zf, "bfit": zf.T @ yf, "nfit": int(f_rows.sum())}
 
     def segments(self, cal: bool | None = None) -> list[int]:
-        """Segment numbers (of calibration or air samples only, when `cal` is given)."""
+        """Segment numbers.
+
+        Parameters
+        ----------
+        cal : bool, optional
+            True: calibration segments only; False: air segments only; None: all.
+        """
         return [g for g, v in self.grams.items() if cal is None or v["cal"] == cal]
 
     def has_air(self) -> bool:
@@ -196,7 +202,17 @@ class Constraints:
     fixed_c: float | None = None
 
     def bounds(self, names: Sequence[str], scale: np.ndarray, with_c: bool) -> tuple[np.ndarray, np.ndarray]:
-        """(lb, ub) of the scaled coefficients (and ``c`` last when `with_c`)."""
+        """(lb, ub) of the scaled coefficients (and ``c`` last when `with_c`).
+
+        Parameters
+        ----------
+        names : sequence of str
+            Term names of the columns.
+        scale : ndarray
+            RMS of each column (the fit divides the columns by it) [unit of the feature].
+        with_c : bool
+            Append the bounds of ``c`` (its sign, or its given value).
+        """
         s = self.sign
         lb, ub = np.full(len(names), -np.inf), np.full(len(names), np.inf)
         for i, n in enumerate(names):

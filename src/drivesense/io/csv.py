@@ -322,6 +322,9 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
             raise ConfigError(f"{path.name}: column {j + 1} ({cell!r}) has no name")
         name = spec.channel if spec is not None else mapping.get(raw, raw)
         if spec is not None:
+            if unit is not None and unit != spec.unit:
+                raise UnitError(f"{path.name}, column {cell!r}: the header says [{unit}], the column map "
+                                f"{column_map.name} says {spec.unit}; correct one of them")
             unit = spec.unit
         if name.lower() == "time":
             name = "time"
@@ -445,8 +448,13 @@ def _check_name(name: str, what: str) -> None:
 
 
 def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | None = None,
-              channels: Sequence[str] | None = None) -> Path:
+              channels: Sequence[str] | None = None, column_map: ColumnMap | None = None) -> Path:
     """Write a Recording as CSV: ``time [s]``, then one ``name [unit]`` column per channel.
+
+    With a `column_map` the file is written as that export: its column names
+    (no units in the header), units, scales and signs, the map's columns in
+    its order for every channel the recording has -- what :func:`read_csv`
+    with the same map reads back.
 
     Parameters
     ----------
@@ -459,6 +467,8 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
         "mm", "time": "ms"}``; default SI.
     channels : sequence of str, optional
         Channels to write, in order; default all.
+    column_map : ColumnMap, optional
+        Write as this export (not with `units` or `channels`).
 
     Returns
     -------
@@ -483,9 +493,12 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
     (:func:`sidecar_path`), written atomically with the CSV; a stale sidecar is
     removed when the Recording has no metadata.
     """
-    from . import atomic_output
 
     path = Path(path)
+    if column_map is not None:
+        if units or channels:
+            raise ConfigError("write_csv: give a column map or units/channels, not both")
+        return _write_mapped(rec, path, column_map)
     units = dict(units or {})
     names = list(rec.channels if channels is None else channels)
     rec.require(*names)
@@ -501,6 +514,30 @@ def write_csv(rec: Recording, path: str | Path, *, units: Mapping[str, str] | No
         quantity = _units.quantity_of_unit(rec.units(name))
         cols.append(_units.from_si(rec[name], unit, quantity=quantity, name=name))
         head.append(f"{name} [{unit}]")
+    return _write_columns(rec, path, head, cols)
+
+
+def _write_mapped(rec: Recording, path: Path, column_map: ColumnMap) -> Path:
+    """The recording as the map's export: map order, the map's units, values divided by scale and sign."""
+    head, cols = [], []
+    for spec in column_map.columns:
+        if spec.channel == "time":
+            values = _units.from_si(rec.time, spec.unit, quantity=_units.TIME, name="time")
+        elif spec.channel in rec.channels:
+            quantity = _units.quantity_of_unit(rec.units(spec.channel))
+            values = _units.from_si(rec[spec.channel], spec.unit, quantity=quantity, name=spec.channel) / spec.factor
+        else:
+            continue
+        head.append(spec.source)
+        cols.append(values)
+    if not any(c for c in head if column_map.lookup(c).channel != "time"):
+        raise ConfigError(f"{column_map.name}: the recording has none of the map's channels")
+    return _write_columns(rec, path, head, cols)
+
+
+def _write_columns(rec: Recording, path: Path, head: list[str], cols: list[np.ndarray]) -> Path:
+    from . import atomic_output
+
     text_cols = [map(repr, c.tolist()) for c in cols]
     meta = {k: v for k, v in rec.meta.items() if k != "provenance"}   # reading adds its own
     meta_text = meta_to_json(meta) + "\n" if meta else None

@@ -135,7 +135,11 @@ class RegressionModel:
         """
         if axis not in self.weights:
             raise ConfigError(f"the regression has no axis {axis!r} (it has {', '.join(self.weights)})")
-        return regression_features(arrays, self.features) @ np.asarray(self.weights[axis])
+        X = regression_features(arrays, self.features)
+        out = np.zeros(X.shape[0])
+        for k, w in enumerate(self.weights[axis]):      # column by column: the same bits for any chunking
+            out += w * X[:, k]
+        return out
 
     def to_dict(self) -> dict:
         """Plain types: ``features`` and ``weights`` (per axis, one per regressor)."""

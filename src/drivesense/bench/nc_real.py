@@ -1,0 +1,180 @@
+"""``bench nc --real DIR``: the controller-rate model on real traces a user points it at, beside the regression.
+
+A folder of controller exports of one machine (CSV read through a column
+map, or drivesense's own ``.nc``/``.csv``): air cuts are the files whose name
+says so (``aircut``, ``air_cut``, ``air-cut`` or ``_air``), every other file
+with the three forces is a cut.  One calibration cut and one air cut identify
+the model (``identify nc``: the air cut sharing the longest name prefix with
+the calibration cut, unless given); the regression is fitted on the same
+calibration cut; both, and the model with ``--per-axis auto``, are scored on
+every other cut of the folder, per file and axis (NRMSE: RMSE over the
+peak-to-peak of that file's reference, the reference delayed by the method's
+latency), with the ratios to the regression.  Nothing here knows the data
+set: the files, the map and the kinematics come from the user.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from drivesense.errors import ConfigError
+from drivesense.recording import Recording
+
+__all__ = ["run_real_nc_bench", "is_air_cut", "real_bench_files"]
+
+AXES = ("x", "y", "z")
+_AIR = re.compile(r"(^|[_\-. ])air([ _-]?cut)?([_\-. ]|$)", re.IGNORECASE)
+
+
+def is_air_cut(path: str | Path) -> bool:
+    """True when a file's name says it is an air cut (``*_Aircut_*``, ``air_cut``, ``..._air.csv``).
+
+    Parameters
+    ----------
+    path : str or Path
+        A trace file.
+    """
+    return bool(_AIR.search(Path(path).stem))
+
+
+def real_bench_files(folder: str | Path, calibration: str | None = None, air: str | None = None) -> dict:
+    """The folder's traces: ``calibration``, ``air`` and ``held_out`` (paths).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder (``*.csv`` and ``*.nc``).
+    calibration : str, optional
+        The calibration cut's file name (default: the first cut by name).
+    air : str, optional
+        The air cut's file name (default: the air cut sharing the longest name prefix with the calibration cut).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(f"--real {folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".csv", ".nc") and p.is_file())
+    airs = [p for p in files if is_air_cut(p)]
+    cuts = [p for p in files if not is_air_cut(p)]
+    if not cuts or not airs:
+        raise ConfigError(f"--real {folder}: needs at least one cut and one air cut (a file named *aircut*), "
+                          f"found {len(cuts)} cut(s) and {len(airs)} air cut(s)")
+    by_name = {p.name: p for p in files}
+    for option, name in (("--calibration", calibration), ("--air", air)):
+        if name is not None and name not in by_name:
+            raise ConfigError(f"{option} {name}: no such file in {folder} (it has {', '.join(by_name)})")
+    cal = by_name[calibration] if calibration else cuts[0]
+    if is_air_cut(cal):
+        raise ConfigError(f"--calibration {cal.name}: that is an air cut; name a cut with forces")
+    if air is not None and not is_air_cut(by_name[air]):
+        raise ConfigError(f"--air {air}: not named as an air cut (*aircut*, *air_cut*, *_air*); it would be scored "
+                          "as a held-out cut too: rename it or name another")
+    if len(cuts) < 2:
+        raise ConfigError(f"--real {folder}: no held-out cut besides the calibration cut {cal.name}; add the cuts to score")
+    air_path = by_name[air] if air else max(airs, key=lambda p: (len(os.path.commonprefix([p.stem, cal.stem])),
+                                                                   -airs.index(p)))
+    return {"calibration": cal, "air": air_path, "held_out": [p for p in cuts if p != cal]}
+
+
+def _nrmse(est: Recording, ref: Recording) -> dict[str, float]:
+    from drivesense.score import aligned_reference
+
+    latency = float(est.meta.get("latency_s", 0.0))
+    out = {}
+    for a in AXES:
+        r = aligned_reference(ref[f"force_{a}"], ref.fs, None, latency)
+        ptp = float(np.ptp(r))
+        out[a] = float(np.sqrt(np.mean((est[f"force_{a}"] - r) ** 2))) / ptp if ptp > 0 else float("nan")
+    return out
+
+
+def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibration: str | None = None,
+                      air: str | None = None, vertical: str | None = None,
+                      carries: Mapping[str, Sequence[str]] | None = None, bad_samples: str = "repair",
+                      progress: Callable | None = None) -> dict:
+    """Identify on one calibration cut and its air cut, score every other cut of the folder beside the regression.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Folder of traces of one machine at one rate.
+    columns : str, optional
+        Column map of the CSV exports (a file or a shipped name, e.g. ``kit-dmc60h``).
+    calibration, air : str, optional
+        File names of the calibration cut and the air cut (see :func:`real_bench_files`).
+    vertical : str, optional
+        The vertical axis (``identify nc --vertical``).
+    carries : mapping, optional
+        Kinematics (``identify nc --carries``).
+    bad_samples : {"refuse", "repair", "off"}
+        What to do with physically impossible samples (real exports have some).
+    progress : callable, optional
+        Called with a label after each file.
+
+    Returns
+    -------
+    dict
+        ``{"nc_real": {...}}``: the files, the identification (terms, active bounds, held-out check), per file and
+        axis the NRMSE of regression, model and auto with the ratios, the pooled means and the targets.
+    """
+    from drivesense.estimate import ModelBased, Regression
+    from drivesense.identify.controller import identify_controller
+    from drivesense.io import read_trace
+
+    files = real_bench_files(folder, calibration, air)
+
+    def read(path: Path) -> Recording:
+        return read_trace(path, columns=columns, bad_samples=bad_samples)
+
+    cal_rec, air_rec = read(files["calibration"]), read(files["air"])
+    air_rec = air_rec.select(*[c for c in air_rec.channels if not c.startswith("force_")])
+    started = time.perf_counter()
+    report = identify_controller([air_rec, cal_rec], vertical=vertical, carries=carries)
+    identify_seconds = time.perf_counter() - started
+    methods = {"regression": Regression(axes=AXES).fit([cal_rec]), "model": ModelBased(report.model),
+               "auto": ModelBased(report.model, per_axis="auto")}
+    rows = []
+    for path in files["held_out"]:
+        rec = read(path)
+        if not all(f"force_{a}" in rec for a in AXES):
+            continue
+        row = {"file": path.name, "samples": rec.n_samples, "nrmse": {m: _nrmse(e.estimate(rec), rec)
+                                                                      for m, e in methods.items()}}
+        row["ratio"] = {m: {a: row["nrmse"][m][a] / row["nrmse"]["regression"][a] for a in AXES}
+                        for m in ("model", "auto")}
+        rows.append(row)
+        if progress:
+            progress(f"nc real {path.name}")
+    if not rows:
+        raise ConfigError(f"--real {folder}: no held-out cut with force_x/y/z besides the calibration cut")
+    summary = {m: {"mean_ratio": float(np.mean([r["ratio"][m][a] for r in rows for a in AXES])),
+                   "worst_ratio": float(max(r["ratio"][m][a] for r in rows for a in AXES)),
+                   "per_axis_mean_ratio": {a: float(np.mean([r["ratio"][m][a] for r in rows])) for a in AXES}}
+               for m in ("model", "auto")}
+    masses = {a: report.model.axis(a).value(f"inertia_{a}") for a in report.model.axes}
+    targets = {
+        "best_worst_axis_ratio": {"value": min(summary["model"]["worst_ratio"], summary["auto"]["worst_ratio"]),
+                                  "target": "<= 1 (model or auto, every file and axis)",
+                                  "met": min(summary["model"]["worst_ratio"], summary["auto"]["worst_ratio"]) <= 1.0},
+        "best_mean_ratio": {"value": min(summary["model"]["mean_ratio"], summary["auto"]["mean_ratio"]),
+                            "target": "<= 0.8", "met": min(summary["model"]["mean_ratio"],
+                                                           summary["auto"]["mean_ratio"]) <= 0.8},
+        "masses_physical": {"value": masses, "target": ">= 0 on every axis", "met": all(m >= 0 for m in masses.values())},
+        "identify_seconds": {"value": identify_seconds, "target": "< 10", "met": identify_seconds < 10.0}}
+    return {"nc_real": {
+        "folder": str(folder), "columns": columns, "calibration": files["calibration"].name,
+        "air": files["air"].name, "rate_hz": cal_rec.fs, "vertical": vertical,
+        "carries": {k: list(v) for k, v in (carries or {}).items()},
+        "identification": {"seconds": identify_seconds, "choice": dict(report.model.choice),
+                           "regression_check": report.regression_check,
+                           "axes": {a: {"K_m": r["K_m"], "terms": r["terms"], "active_bounds": r["active_bounds"],
+                                        "dropped": r["dropped"], "held_out": r["held_out"]}
+                                    for a, r in report.axes.items()}},
+        "files": rows, "summary": summary, "targets": targets,
+        "baseline": "13-term least squares of each force on the x/y/z/spindle currents, sgn(v), v and a, fitted on "
+                    "the calibration cut"}}
