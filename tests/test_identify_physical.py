@@ -193,3 +193,45 @@ def test_per_axis_auto_needs_a_model_with_its_regression(identified):
         Regression(bare)
     with pytest.raises(ConfigError, match="choice y = 'regression' but the model holds no regression"):
         dataclasses.replace(rep.model, regression=None, choice={"y": "regression"})
+
+
+def test_a_dynamometer_turned_against_the_machine_axis_keeps_the_model_physical():
+    # the reference of x reads the process load with the opposite sign (a dynamometer frame turned against the
+    # machine's): an unconstrained fit gave a negative mass and friction here; now the signs are kept apart
+    air = _trace(12, name="air")
+    cal = _trace(13, force=_cutting)
+    turned = cal.with_channels({"force_x": -cal["force_x"]})
+    rep = identify_controller([air, turned])
+    x = rep.model.axis("x")
+    assert x.force_sign == -1 and rep.axes["x"]["force_sign"] == -1 and "turned" in rep.axes["x"]["force_sign_note"]
+    assert rep.model.axis("y").force_sign == 1
+    assert x.K_m == pytest.approx(TRUE["x"]["K"], rel=0.05)
+    assert x.value("inertia_x") == pytest.approx(TRUE["x"]["m"], rel=0.1) and x.value("coulomb_pos") > 0
+    est = ModelBased(rep.model).estimate(turned)
+    err = est["force_x"] - turned["force_x"]
+    assert np.sqrt(np.mean(err ** 2)) < 0.05 * np.ptp(turned["force_x"])
+
+
+def test_an_axis_the_physics_cannot_identify_gets_the_regression_under_auto(tmp_path):
+    # y stands still in every trace (no friction to fix the drive's sign, nothing to identify K_m from), yet the
+    # calibration cut has its force, which the other axis's current predicts: only the regression can estimate it
+    def standing_y(axis, v, a, rng):
+        return _cutting("x", v, a, rng)
+
+    air = _trace(14, axes=("x",), name="air")
+    cal = _trace(15, axes=("x",), force=standing_y)
+    n = cal.n_samples
+    still = {"y_position": np.zeros(n), "y_velocity": np.zeros(n), "y_acceleration": np.zeros(n),
+             "y_current": 0.001 * np.random.default_rng(1).standard_normal(n)}
+    units = {"y_position": "m", "y_velocity": "m/s", "y_acceleration": "m/s^2", "y_current": "A"}
+    cal = cal.with_channels({**still, "force_y": 0.5 * cal["force_x"]}, units={**units, "force_y": "N"})
+    air = air.with_channels({k: v[: air.n_samples] for k, v in still.items()}, units=units)
+    rep = identify_controller([air, cal])
+    assert "y" not in rep.model.axes and any("axis y left out" in w for w in rep.warnings)
+    assert rep.model.choice["y"] == "regression" and rep.regression_check["y"]["note"].startswith("no physical model")
+    path = write_axes_file(tmp_path / "AXES.toml", rep.model)
+    auto = ModelBased(read_axes_file(path), per_axis="auto")
+    assert auto.axes == ("x", "y") and auto.regression_axes == ("y",)
+    got = auto.estimate(cal)
+    assert np.sqrt(np.mean((got["force_y"] - cal["force_y"]) ** 2)) < 0.1 * np.ptp(cal["force_y"])
+    assert ModelBased(read_axes_file(path)).axes == ("x",)

@@ -239,3 +239,26 @@ def test_learn_bench_figures_per_seed_and_their_spread():
     assert set(t) == set(TARGETS)
     assert t["hybrid_over_model_pocket"]["met"] and not t["train_minutes_lstm_plus_hybrid"]["met"]
     assert t["coverage_90"]["met"] and t["hybrid_over_model_pocket"]["spread"]["std"] == 0.0
+
+
+def test_a_hybrid_never_does_worse_than_its_model_on_the_validation_data(tiny):
+    """Where the validation runs are the model's own estimate, any learned correction is worse: it is switched off
+    and the hybrid gives its model (the model-alone candidate)."""
+    from drivesense.estimate import ModelBased
+    from drivesense.machine.linear_motor import linear_machine_model
+
+    _, _, runs = tiny
+    axes = linear_machine_model()
+    train = [r for r in runs if r.meta.get("split") == "train"]
+    val = []
+    for r in [r for r in runs if r.meta.get("split") == "val"]:
+        own = ModelBased(axes).estimate(r)
+        val.append(r.with_channels({c: own[c] for c in own.channels}))
+    hyb = Hybrid(config=TINY).fit(train + val, model_based=axes)
+    history = hyb.model.history
+    assert all(history["correction"][ch].startswith("off") for ch in ("force_x", "force_y", "force_z")), history
+    assert all(history["model_alone_val_loss"][ch] <= min(history["val_loss"][ch]) for ch in history["correction"])
+    rec = runs[0]
+    got, model = hyb.estimate(rec), ModelBased(axes).estimate(rec)
+    for ch in ("force_x", "force_y", "force_z"):
+        np.testing.assert_allclose(got[ch], model[ch], rtol=1e-5, atol=1e-3 * float(np.ptp(model[ch])))

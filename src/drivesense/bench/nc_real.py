@@ -81,6 +81,22 @@ def real_bench_files(folder: str | Path, calibration: str | None = None, air: st
     return {"calibration": cal, "air": air_path, "held_out": [p for p in cuts if p != cal]}
 
 
+def _train_hybrid(model, cal: Recording, held_out: list, n: int, read) -> tuple[dict, list]:
+    """The hybrid on the calibration cut (and the held-out cut nearest to it by name), small-set defaults."""
+    from drivesense.learn import Hybrid
+    from drivesense.learn.model import TrainConfig
+
+    extra_paths = sorted(held_out, key=lambda p: -len(os.path.commonprefix([p.stem, cal.name or ""])))[:n - 1]
+    extra = [read(p) for p in extra_paths]
+    started = time.perf_counter()
+    est = Hybrid(config=TrainConfig(seed=0)).fit([cal, *extra], model_based=model)
+    seconds = time.perf_counter() - started
+    hist = est.model.history
+    return {"estimator": est, "train_files": [cal.name, *(p.name for p in extra_paths)], "train_seconds": seconds,
+            "epochs": hist.get("epochs"), "correction": hist.get("correction"), "validation": hist.get("validation"),
+            "windows_per_epoch": est.model.config.windows_per_epoch}, extra
+
+
 def _nrmse(est: Recording, ref: Recording) -> dict[str, float]:
     from drivesense.score import aligned_reference
 
@@ -96,7 +112,7 @@ def _nrmse(est: Recording, ref: Recording) -> dict[str, float]:
 def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibration: str | None = None,
                       air: str | None = None, vertical: str | None = None,
                       carries: Mapping[str, Sequence[str]] | None = None, bad_samples: str = "repair",
-                      progress: Callable | None = None) -> dict:
+                      hybrid_cuts: int = 0, progress: Callable | None = None) -> dict:
     """Identify on one calibration cut and its air cut, score every other cut of the folder beside the regression.
 
     Parameters
@@ -113,6 +129,10 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
         Kinematics (``identify nc --carries``).
     bad_samples : {"refuse", "repair", "off"}
         What to do with physically impossible samples (real exports have some).
+    hybrid_cuts : {0, 1, 2}
+        Also train the hybrid on top of the identified model on this many cuts (the calibration cut, then the
+        held-out cut sharing the longest name prefix with it, which is then no longer scored) with the small-set
+        defaults, and score it on the remaining cuts beside the regression fitted on the same cuts.
     progress : callable, optional
         Called with a label after each file.
 
@@ -126,7 +146,11 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     from drivesense.identify.controller import identify_controller
     from drivesense.io import read_trace
 
+    if hybrid_cuts not in (0, 1, 2):
+        raise ConfigError(f"--hybrid {hybrid_cuts}: train the hybrid on 1 or 2 cuts (0: not at all)")
     files = real_bench_files(folder, calibration, air)
+    if hybrid_cuts == 2 and len(files["held_out"]) < 2:
+        raise ConfigError("--hybrid 2 trains on the calibration cut and one more: the folder needs two held-out cuts")
 
     def read(path: Path) -> Recording:
         return read_trace(path, columns=columns, bad_samples=bad_samples)
@@ -138,15 +162,27 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     identify_seconds = time.perf_counter() - started
     methods = {"regression": Regression(axes=AXES).fit([cal_rec]), "model": ModelBased(report.model),
                "auto": ModelBased(report.model, per_axis="auto")}
+    held_out = list(files["held_out"])
+    learned = None
+    if hybrid_cuts and not all(a in report.model.axes for a in AXES):
+        learned = {"skipped": "the hybrid corrects a model of x, y and z; identify nc left out "
+                              + ", ".join(a for a in AXES if a not in report.model.axes)}
+    elif hybrid_cuts:
+        learned, extra = _train_hybrid(report.model, cal_rec, held_out, hybrid_cuts, read)
+        methods["hybrid"] = learned.pop("estimator")
+        methods["regression_same_cuts"] = Regression(axes=AXES).fit([cal_rec, *extra])
+        held_out = [p for p in held_out if p.name not in learned["train_files"]]
+        if progress:
+            progress("nc real hybrid trained")
+    compared = [m for m in methods if m != "regression"]
     rows = []
-    for path in files["held_out"]:
+    for path in held_out:
         rec = read(path)
         if not all(f"force_{a}" in rec for a in AXES):
             continue
         row = {"file": path.name, "samples": rec.n_samples, "nrmse": {m: _nrmse(e.estimate(rec), rec)
                                                                       for m, e in methods.items()}}
-        row["ratio"] = {m: {a: row["nrmse"][m][a] / row["nrmse"]["regression"][a] for a in AXES}
-                        for m in ("model", "auto")}
+        row["ratio"] = {m: {a: row["nrmse"][m][a] / row["nrmse"]["regression"][a] for a in AXES} for m in compared}
         rows.append(row)
         if progress:
             progress(f"nc real {path.name}")
@@ -155,7 +191,13 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     summary = {m: {"mean_ratio": float(np.mean([r["ratio"][m][a] for r in rows for a in AXES])),
                    "worst_ratio": float(max(r["ratio"][m][a] for r in rows for a in AXES)),
                    "per_axis_mean_ratio": {a: float(np.mean([r["ratio"][m][a] for r in rows])) for a in AXES}}
-               for m in ("model", "auto")}
+               for m in compared}
+    if "hybrid" in methods:
+        learned["over_model"] = {a: float(np.mean([r["nrmse"]["hybrid"][a] / r["nrmse"]["model"][a] for r in rows]))
+                                 for a in AXES}
+        learned["over_regression_same_cuts"] = float(np.mean([r["nrmse"]["hybrid"][a]
+                                                              / r["nrmse"]["regression_same_cuts"][a]
+                                                              for r in rows for a in AXES]))
     masses = {a: report.model.axis(a).value(f"inertia_{a}") for a in report.model.axes}
     targets = {
         "best_worst_axis_ratio": {"value": min(summary["model"]["worst_ratio"], summary["auto"]["worst_ratio"]),
@@ -166,6 +208,14 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
                                                            summary["auto"]["mean_ratio"]) <= 0.8},
         "masses_physical": {"value": masses, "target": ">= 0 on every axis", "met": all(m >= 0 for m in masses.values())},
         "identify_seconds": {"value": identify_seconds, "target": "< 10", "met": identify_seconds < 10.0}}
+    if "hybrid" in methods:
+        worst = max(learned["over_model"].values())
+        targets["hybrid_mean_ratio"] = {"value": summary["hybrid"]["mean_ratio"], "target": "<= 0.7",
+                                        "met": summary["hybrid"]["mean_ratio"] <= 0.7}
+        targets["hybrid_over_model_worst_axis"] = {"value": worst, "target": "<= 1 (never worse than its model)",
+                                                   "met": worst <= 1.0}
+        targets["hybrid_train_seconds"] = {"value": learned["train_seconds"], "target": "<= 120",
+                                           "met": learned["train_seconds"] <= 120.0}
     return {"nc_real": {
         "folder": str(folder), "columns": columns, "calibration": files["calibration"].name,
         "air": files["air"].name, "rate_hz": cal_rec.fs, "vertical": vertical,
@@ -175,6 +225,6 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
                            "axes": {a: {"K_m": r["K_m"], "terms": r["terms"], "active_bounds": r["active_bounds"],
                                         "dropped": r["dropped"], "held_out": r["held_out"]}
                                     for a, r in report.axes.items()}},
-        "files": rows, "summary": summary, "targets": targets,
+        "files": rows, "summary": summary, "targets": targets, **({"hybrid": learned} if learned else {}),
         "baseline": "13-term least squares of each force on the x/y/z/spindle currents, sgn(v), v and a, fitted on "
                     "the calibration cut"}}

@@ -364,20 +364,23 @@ def bench(
                                                     help="--real: the vertical axis (identify nc --vertical).")] = None,
     carries: Annotated[Optional[str], typer.Option("--carries", metavar="AXIS=AXIS",
                                                    help="--real: kinematics (identify nc --carries).")] = None,
+    hybrid: Annotated[Optional[int], typer.Option(
+        "--hybrid", metavar="N", help="--real: also train the hybrid on N (1 or 2) cuts and score it on the "
+                                      "rest.")] = None,
 ) -> None:
     """Accuracy and speed benchmarks (speed as ratios to baselines measured in the same run)."""
     from drivesense.bench import run_bench
     from drivesense.errors import ConfigError
 
     real_options = {"--columns": columns, "--calibration": calibration, "--air": air, "--vertical": vertical,
-                    "--carries": carries}
+                    "--carries": carries, "--hybrid": hybrid}
     if real is None and any(v is not None for v in real_options.values()):
         given = [k for k, v in real_options.items() if v is not None]
         raise ConfigError(f"{', '.join(given)} apply to real traces: give --real DIR (with bench nc)")
     if real is not None:
         if kind != "nc":
             raise ConfigError(f"--real DIR runs bench nc on real traces; it does not apply to bench {kind}")
-        return _real_nc_bench(real, columns, calibration, air, vertical, carries, json_path)
+        return _real_nc_bench(real, columns, calibration, air, vertical, carries, hybrid or 0, json_path)
     with progress_bar() as progress:
         # steps per part vary (e.g. io runs more with a PostgreSQL server): count them, no fixed total
         task = progress.add_task(f"bench {kind}", total=None)
@@ -412,7 +415,7 @@ def bench(
     write_json(json_path, result)
 
 
-def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, json_path) -> None:
+def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, hybrid: int, json_path) -> None:
     """``bench nc --real DIR``: the per-file table and the targets."""
     from drivesense.bench.machine import machine_info
     from drivesense.bench.nc_real import run_real_nc_bench
@@ -421,20 +424,23 @@ def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, j
     with progress_bar() as progress, show_warnings():
         task = progress.add_task(f"bench nc --real {folder.name}", total=None)
         result = run_real_nc_bench(folder, columns=columns, calibration=calibration, air=air, vertical=vertical,
-                                   carries=parse_carries(carries) if carries else None,
+                                   carries=parse_carries(carries) if carries else None, hybrid_cuts=hybrid,
                                    progress=lambda label: progress.advance(task))
     res = result["nc_real"]
     table = Table(title=escape(f"NRMSE on held-out cuts: identified on {res['calibration']} + {res['air']}"),
                   box=box.SIMPLE)
-    table.add_column("file")
-    for a in ("x", "y", "z"):
-        for m in ("regression", "model", "auto"):
-            table.add_column(f"{a} {m}", justify="right")
+    shown = ["regression", "model", "auto", *(["hybrid"] if "over_model" in res.get("hybrid", {}) else [])]
+    table.add_column("file", overflow="fold")
+    table.add_column("axis")
+    for m in shown:
+        table.add_column(m, justify="right")
+    table.add_column("auto / regression", justify="right")
     for row in res["files"]:
-        table.add_row(escape(row["file"]), *(f"{row['nrmse'][m][a] * 100:.1f} %" for a in ("x", "y", "z")
-                                             for m in ("regression", "model", "auto")))
+        for a in ("x", "y", "z"):
+            table.add_row(escape(row["file"]) if a == "x" else "", a,
+                          *(f"{row['nrmse'][m][a] * 100:.1f} %" for m in shown), f"{row['ratio']['auto'][a]:.2f}x")
     console.print(table)
-    for m in ("model", "auto"):
+    for m in shown[1:]:
         summary = res["summary"][m]
         console.print(f"{m} / regression: mean {summary['mean_ratio']:.2f}x, worst {summary['worst_ratio']:.2f}x, per "
                       f"axis {', '.join(f'{a} {v:.2f}x' for a, v in summary['per_axis_mean_ratio'].items())}",

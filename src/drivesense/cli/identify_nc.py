@@ -152,14 +152,15 @@ def identify_nc(
             check.add_column(col, justify="right" if col != "axis" else "left")
         for a, row in report.regression_check.items():
             if "ratio" not in row:
-                check.add_row(a, "-", "-", "-", escape(row.get("note", "")))
+                reg = row.get("regression_nrmse")
+                check.add_row(a, "no model", "-" if reg is None else f"{reg * 100:.1f} %", "-", row["choice"])
                 continue
             check.add_row(a, f"{row['model_nrmse'] * 100:.1f} %", f"{row['regression_nrmse'] * 100:.1f} %",
                           f"{row['ratio']:.2f}x", row["choice"])
         console.print(check)
         for a, row in report.regression_check.items():
             if row.get("choice") == "regression":
-                warn(f"axis {a}: {row['note']}")
+                warn(row["note"] if row["note"].startswith("no physical model") else f"axis {a}: {row['note']}")
     dropped = Table(title="Terms the data did not determine")
     dropped.add_column("axis")
     dropped.add_column("term")

@@ -104,6 +104,8 @@ class ModelBased(ForceEstimator):
             raise ConfigError(f"ModelBased kind must be 'linear' or 'controller' and match the model, got {kind!r}")
         self.kind = kind
         known = tuple(model.axes) if isinstance(model, ControllerModel) else AXES
+        if isinstance(model, ControllerModel) and per_axis == "auto":     # and where only the regression could
+            known = (*known, *(a for a, how in model.choice.items() if how == "regression" and a not in known))
         axes = tuple(axes) if axes is not None else (known if kind == "controller" or model is not None else AXES)
         bad = [a for a in axes if a not in known]
         if bad or not axes:

@@ -115,7 +115,7 @@ class Regression(ForceEstimator):
         state : dict
             From :meth:`new_state`.
         arrays : mapping of str to ndarray
-            The input channels (:attr:`channel_names`) in SI.
+            The input channels (:attr:`channel_names`) [A, m/s, m/s^2].
         """
         return {f"force_{a}": self.model.predict(a, arrays) for a in self.axes}
 

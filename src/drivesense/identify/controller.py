@@ -58,7 +58,7 @@ import numpy as np
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
 from drivesense.identify.kinematics import carried_first, check_kinematics, mass_floor, merge_bounds, offset_bound
 from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
-from drivesense.identify.physical_fit import AxisProblem, Constraints, fit_bounded, held_out_error, segment_ids, sign_of_c
+from drivesense.identify.physical_fit import AxisProblem, Constraints, fit_bounded, held_out_error, orientation, segment_ids
 from drivesense.identify.term_choice import choose_terms, physical_terms, term_table
 from drivesense.identify.regression_check import compare_with_regression
 from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, axis_direction, feature_column,
@@ -359,10 +359,15 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     v = data.arrays[f"{axis}_velocity"]
     sliding = data.is_cal & (np.abs(v) > max(50.0 * st.v_eps, _SLIDING_SPEED))
     lengths = np.diff([*data.starts, data.force.size])
-    problem = AxisProblem(_columns(names, axis, data, st), data.arrays[f"{axis}_current"], data.force, data.is_cal,
-                          segment_ids(lengths, fs), list(names),
-                          use_for_c=sliding | ~data.is_cal if sliding.sum() >= 50 else None)
-    sign = math.copysign(1.0, km) if km is not None else sign_of_c(problem, list(range(len(names))))
+    X = _columns(names, axis, data, st)
+    segments = segment_ids(lengths, fs)
+    use_for_c = sliding | ~data.is_cal if sliding.sum() >= 50 else None
+    problem = AxisProblem(X, data.arrays[f"{axis}_current"], data.force, data.is_cal, segments, list(names),
+                          use_for_c=use_for_c)
+    sign, force_sign, sign_source = orientation(problem, list(range(len(names))), km)
+    if force_sign < 0:      # the reference reads the load against the drive: fit on the load, estimate its sign
+        problem = AxisProblem(X, data.arrays[f"{axis}_current"], -data.force, data.is_cal, segments, list(names),
+                              use_for_c=use_for_c)
     cons = Constraints(axis=axis, sign=sign, fixed_c=1.0 / km if km is not None else None, **dict(bounds or {}))
     names, ridge, shrink, mse = choose_terms(problem, cons, keep, dropped)
     if "stribeck" not in names:
@@ -377,11 +382,16 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     air_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, air_only=True) \
         if len(problem.segments(False)) >= 2 else float("nan")
     model = ControllerAxis(K_m=K, terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=K_ci, v_s=st.v_s, period=st.period,
-                           x_pre=st.x_pre, hold_time=st.hold_time, dropped=dict(dropped))
+                           x_pre=st.x_pre, hold_time=st.hold_time, dropped=dict(dropped), force_sign=int(force_sign))
     residual = problem.y - problem.X[:, cols] @ fit.theta - fit.c * problem.force
     air = dict(zip(names, fit.theta_air))
     report = {"K_m": K, "K_m_ci95": K_ci, "K_m_source": "identified from the calibration cut(s)" if km is None
               else "given (--km)", "terms": term_table(terms, air, K), "active_bounds": active,
+              "drive_sign_from": sign_source, "force_sign": int(force_sign),
+              **({"force_sign_note": f"the reference force_{axis} reads the process load against the drive's sign "
+                                     "(a dynamometer whose axis is turned against the machine's): the model stays "
+                                     "physical and its estimate follows the reference's sign"}
+                 if force_sign < 0 else {}),
               "v_eps_m_s": st.v_eps, "v_s_m_s": model.v_s, "period_m": model.period, "x_pre_m": st.x_pre,
               "hold_time_s": st.hold_time, "dropped": dict(dropped), "ridge": ridge, "shrink": shrink,
               "held_out": {"current_rms_a": math.sqrt(mse), "force_rms_n": math.sqrt(mse) * abs(K),
@@ -591,7 +601,7 @@ def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> Contr
     if not models:
         raise IdentificationError("; ".join(left_out.values()))
     warnings.extend(f"axis {a} left out of the model: {why}" for a, why in left_out.items())
-    check = compare_with_regression(traces, list(models), datas, reports, fs) if has_cal else None
+    check = compare_with_regression(traces, axes, datas, reports, fs, left_out) if has_cal else None
     # the traces' own declared delay (meta nc_delay_s) is added to the latency by the estimator: keep the rest
     declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if _has_force(rec)), default=0.0)
     model = ControllerModel(axes=models, window_s=float(T), delay_s=max(float(d / fs) - declared, 0.0),

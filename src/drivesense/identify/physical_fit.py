@@ -36,7 +36,7 @@ from scipy.optimize import lsq_linear
 from drivesense.errors import IdentificationError
 from drivesense.identify.least_squares import residual_variance
 
-__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "sign_of_c", "held_out_error", "segment_ids", "SIGN_TERMS",
+__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "orientation", "held_out_error", "segment_ids", "SIGN_TERMS",
            "RIDGE_GRID", "SHRINK_GRID"]
 
 #: Terms whose coefficient has the sign of ``c`` (the force constant's inverse): masses and friction levels.
@@ -77,7 +77,7 @@ class AxisProblem:
     Parameters
     ----------
     X : ndarray, shape (n, k)
-        Term features.
+        Term features [unit of each feature].
     y : ndarray, shape (n,)
         Logged current [A].
     force : ndarray, shape (n,)
@@ -145,7 +145,7 @@ class BoundedFit:
     c : float
         Inverse force constant [A/N] (0 when the problem has no calibration samples).
     theta_air : ndarray
-        The air-cut stage's coefficients (NaN without air samples).
+        The air-cut stage's coefficients (NaN without air samples) [A per unit of the feature].
     active : dict
         Column -> "lower"/"upper" for coefficients at a bound.
     """
@@ -185,7 +185,7 @@ class Constraints:
     axis : str
         The axis letter (its own ``inertia_<axis>`` is a mass: ``s theta >= 0``).
     sign : float
-        ``s = sign(c)`` (+1 or -1).
+        ``s = sign(c)`` (+1 or -1) [-].
     lower, upper : dict of str to float
         Extra bounds per term on ``s * theta`` [A per unit of the feature] (e.g. a mass floor, an offset limit).
     why : dict of str to str
@@ -307,8 +307,10 @@ def held_out_error(problem: AxisProblem, cols: list, cons: Constraints, *, ridge
         Columns (terms) to use.
     cons : Constraints
         Sign and bounds.
-    ridge, shrink : float
-        As :func:`fit_bounded`.
+    ridge : float
+        As :func:`fit_bounded` [-].
+    shrink : float
+        As :func:`fit_bounded` [-].
     cal_only : bool
         Score only the calibration segments (their force error is ``|K_m|`` times this residual).
     air_only : bool
@@ -378,9 +380,16 @@ def covariance(problem: AxisProblem, fit: BoundedFit, residual: np.ndarray, *, w
     return cov / np.outer(unscale, unscale)
 
 
-def sign_of_c(problem: AxisProblem, cols: list) -> float:
-    """``sign(c)``: from the air cuts' friction levels (force-free) when they move the axis both ways, else from
-    the unconstrained joint fit's ``c``.
+def orientation(problem: AxisProblem, cols: list, km: float | None = None) -> tuple[float, float, str]:
+    """The drive's sign ``s`` (of ``c = 1 / K_m``, shared by the masses and friction levels) and the force
+    reference's orientation ``s_F`` relative to the drive.
+
+    ``s`` comes from the friction levels -- friction always opposes the motion, so the current's sign against
+    ``sgn(v)`` is the drive's -- of the air cuts (force-free) where they move the axis both ways, else of the
+    joint fit, else from a given ``K_m``.  A dynamometer's axes need not be the machine's: the unconstrained
+    joint fit's ``c`` says whether the reference reads the process load with the drive's sign (``s_F = +1``) or
+    against it (``s_F = -1``, e.g. a dynamometer mounted turned); the model then keeps physical masses and
+    friction and its estimate follows the reference's sign.
 
     Parameters
     ----------
@@ -388,20 +397,42 @@ def sign_of_c(problem: AxisProblem, cols: list) -> float:
         The axis's data.
     cols : list of int
         Candidate columns.
+    km : float, optional
+        A given force constant [N/A] (its sign is the drive's).
+
+    Returns
+    -------
+    (s, s_F, source)
+        Signs (+1 or -1) and where ``s`` came from.
     """
     names = [problem.names[i] for i in cols]
     friction = [j for j, n in enumerate(names) if n in ("coulomb_pos", "coulomb_neg")]
-    if problem.has_air() and len(friction) == 2:
-        lb, ub = np.full(len(cols), -np.inf), np.full(len(cols), np.inf)
-        theta = _stage_air(problem, cols, problem.segments(False), 1e-6, lb, ub)
-        level = sum(theta[j] / problem.scale[cols[j]] for j in friction)
-        if level != 0 and math.isfinite(level):
-            return 1.0 if level > 0 else -1.0
-    if not problem.segments(True):
-        raise IdentificationError("neither air cuts moving the axis both ways nor calibration cuts fix the sign of K_m")
-    idx = [*cols, problem.X.shape[1]]
-    segs = problem.segments(True) + problem.segments(False)
-    G = _sum(problem, segs, "Gfit")[np.ix_(idx, idx)]
-    b = _sum(problem, segs, "bfit")[idx]
-    z = np.linalg.lstsq(G + 1e-9 * np.trace(G) * np.eye(len(idx)), b, rcond=None)[0]
-    return 1.0 if z[-1] >= 0 else -1.0
+    free_lb, free_ub = np.full(len(cols), -np.inf), np.full(len(cols), np.inf)
+
+    def level(theta: np.ndarray) -> float:
+        return float(sum(theta[j] / problem.scale[cols[j]] for j in friction))
+
+    c_joint = None
+    if problem.segments(True):
+        idx = [*cols, problem.X.shape[1]]
+        segs = problem.segments()
+        G = _sum(problem, segs, "Gfit")[np.ix_(idx, idx)]
+        b = _sum(problem, segs, "bfit")[idx]
+        z = np.linalg.lstsq(G + 1e-9 * np.trace(G) * np.eye(len(idx)), b, rcond=None)[0]
+        c_joint, joint_level = float(z[-1]), level(z[:-1])
+    s, source = 0.0, ""
+    if km is not None:
+        s, source = math.copysign(1.0, km), "the given K_m"
+    elif problem.has_air() and len(friction) == 2:
+        air_level = level(_stage_air(problem, cols, problem.segments(False), 1e-6, free_lb, free_ub))
+        if air_level != 0 and math.isfinite(air_level):
+            s, source = math.copysign(1.0, air_level), "the air cuts' friction"
+    if s == 0 and c_joint is not None and len(friction) == 2 and joint_level != 0:
+        s, source = math.copysign(1.0, joint_level), "the friction in the calibration cuts"
+    if s == 0:
+        if c_joint is None:
+            raise IdentificationError("neither air cuts moving the axis both ways nor calibration cuts fix the "
+                                      "sign of K_m")
+        s, source = math.copysign(1.0, c_joint), "the calibration force (the axis's friction is not excited)"
+    s_F = 1.0 if c_joint is None or c_joint == 0 else math.copysign(1.0, c_joint) * s
+    return s, s_F, source

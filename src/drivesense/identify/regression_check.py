@@ -68,7 +68,7 @@ def _regression_held_out(cal: Sequence[Recording], axes: Sequence[str], features
 
 
 def compare_with_regression(traces: Sequence[Recording], axes: Sequence[str], datas: Mapping, reports: Mapping,
-                            fs: float) -> RegressionCheck | None:
+                            fs: float, left_out: Mapping[str, str] | None = None) -> RegressionCheck | None:
     """Fit the regression on the calibration cuts and compare its held-out error with the model's, per axis.
 
     Parameters
@@ -84,6 +84,9 @@ def compare_with_regression(traces: Sequence[Recording], axes: Sequence[str], da
         Per axis, the identification report (``held_out.calibration_force_rms_n``, ``K_m``).
     fs : float
         Trace rate [Hz].
+    left_out : mapping of str to str, optional
+        Axes the physical model could not be identified for, with the reason: the regression is all there is
+        on them (choice ``"regression"``).
 
     Returns
     -------
@@ -110,6 +113,14 @@ def compare_with_regression(traces: Sequence[Recording], axes: Sequence[str], da
     air = [r for r in traces if not any(c.startswith("force_") for c in r.channels)]
     choice, report = {}, {}
     for a in axes:
+        if a not in reports:
+            sse, n, ptp = held.get(a, (math.nan, 1, math.nan))
+            choice[a] = "regression"
+            report[a] = {"model_nrmse": None, "regression_nrmse": math.sqrt(sse / n) / ptp if ptp > 0 else None,
+                         "choice": "regression",
+                         "note": f"no physical model of axis {a} ({(left_out or {}).get(a, 'not identified')}): "
+                                 "--per-axis auto takes the regression on this axis"}
+            continue
         ho = reports[a]["held_out"]
         model_rms = ho.get("calibration_force_rms_n")
         if a not in held or model_rms is None:

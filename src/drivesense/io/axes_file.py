@@ -160,10 +160,12 @@ def _controller_lines(model: ControllerModel) -> list[str]:
              "v_eps": "m/s, standstill noise of the logged velocity", "v_s": "m/s, Stribeck velocity (0: none)",
              "period": "m, period of the ripple terms (0: none)",
              "x_pre": "m, presliding distance of the friction direction's Dahl state (0: window-mean sign)",
-             "hold_time": "s, relaxation time of the friction held at standstill (0: none)"}
+             "hold_time": "s, relaxation time of the friction held at standstill (0: none)",
+             "force_sign": "-1: the force reference reads the load against the drive (estimate follows it)"}
     for name, ax in model.axes.items():
         d = ax.to_dict()
-        lines += ["", f"[{name}]"] + [f"{k} = {float(d[k])!r}  # {note}" for k, note in notes.items()]
+        lines += ["", f"[{name}]"] + [f"{k} = {d[k] if k == 'force_sign' else float(d[k])!r}  # {note}"
+                                      for k, note in notes.items()]
         lines += ["", f"[{name}.terms]  # F = K_m I - sum(value * feature); name = [value, 95 % half-width]"]
         lines += [f"{t.name} = [{t.value!r}, {t.ci95!r}]  # {term_unit(t.name)}" for t in ax.terms]
         if ax.dropped:

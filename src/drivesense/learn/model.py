@@ -69,8 +69,10 @@ class TrainConfig:
         model's rate.
     batch : int
         Windows per batch.
-    windows_per_epoch : int
-        Windows drawn per epoch.
+    windows_per_epoch : int, optional
+        Training windows drawn per epoch; None (default): about four passes
+        over the training samples, between 256 and 4096 windows (one or two
+        50 Hz cuts: 256; the built dataset: 4096).
     epochs : int
         Maximum epochs.
     patience : int
@@ -140,7 +142,7 @@ class TrainConfig:
     window: int | None = None
     burn_in: int | None = None
     batch: int = 128
-    windows_per_epoch: int = 4096
+    windows_per_epoch: int | None = None
     epochs: int = 100
     patience: int = 12
     lr: float = 1e-3

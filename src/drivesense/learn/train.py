@@ -35,6 +35,7 @@ re-exported here).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -122,8 +123,11 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         Traces with the NC inputs and reference forces.  ``meta["split"]``
         ``"train"`` (or no split) trains, ``"val"`` validates (early stopping
         and the interval calibration); other splits (``"test"``...) are
-        ignored.  Without validation runs -- one or two files -- a time split
-        of each training run (:func:`time_split`, ``config.val_fraction``)
+        ignored.  Without validation runs a hybrid given two or more runs
+        holds the last one out (leave-one-file-out: early stopping, and the
+        choice between its correction and the model alone, are made on a file
+        it never trained on); otherwise -- one file, or a plain LSTM -- a time
+        split of each training run (:func:`time_split`, ``config.val_fraction``)
         validates instead.  Any rate from 25 Hz up: the model works at the
         runs' own rate (``config.fs`` None) or at ``config.fs``, resampling
         explicitly.
@@ -149,8 +153,15 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         model_based = model_based.model
     if kind == "hybrid" and model_based is None:
         raise ConfigError("a hybrid needs the identified axes (model_based=...) for its model part")
+    missing = [a for a in ("x", "y", "z") if kind == "hybrid" and hasattr(model_based, "axes")
+               and isinstance(model_based.axes, dict) and a not in model_based.axes]
+    if missing:
+        raise ConfigError(f"a hybrid corrects the model of axes x, y and z; the identified model lacks "
+                          f"{', '.join(missing)} (identify nc left it out: see its warnings, or give --km)")
     train = [r for r in runs if r.meta.get("split", "train") == "train"]
     val = [r for r in runs if r.meta.get("split") == "val"]
+    if kind == "hybrid" and not val and len(train) >= 2 and not any("split" in r.meta for r in train):
+        train, val = train[:-1], train[-1:]       # leave-one-file-out
     if not train:
         raise InvalidSignalError(f"training needs runs with meta split 'train' (or none); got {len(val)} 'val' "
                                  f"and {len(runs) - len(val)} other runs")
@@ -159,6 +170,9 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         raise InvalidSignalError(f"the learned methods need traces at {MIN_FS:g} Hz or faster; the model would "
                                  f"work at {fs:g} Hz (resample the traces, --resample HZ)")
     config = config.at_rate(fs, kind)
+    if config.windows_per_epoch is None:
+        samples = sum(r.n_samples * config.fs / r.fs for r in train)
+        config = replace(config, windows_per_epoch=int(min(4096, max(256, 4 * samples / config.window))))
     t_start = time.perf_counter()
     torch.manual_seed(config.seed)
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
@@ -168,7 +182,8 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
     prepared = {name: [(rec, *model.inputs(rec)) for rec in group] for name, group in (("train", train), ("val", val))}
     masks: dict = {"train": [None] * len(train), "val": [None] * len(val)}
     if val:
-        validation = f"{len(val)} validation run(s)"
+        validation = (f"{len(val)} validation run(s)" if any("split" in r.meta for r in val)
+                      else f"leave-one-file-out: {val[0].name or 'the last run'} held out")
     else:
         split = [time_split(rec.n_samples, config.val_fraction, config.window, config.burn_in) for rec in train]
         if not any(v.any() for _, v in split):
@@ -191,8 +206,9 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         weights, hist = _train_one(torch, model, ch, data["train"], data["val"], config, progress)
         model.weights[ch] = weights
         history["seconds"][ch] = time.perf_counter() - t0
-        for key in ("epochs", "train_loss", "val_loss", "initial_val_loss", "skip_ridge"):
-            history.setdefault(key, {})[ch] = hist[key]
+        for key in ("epochs", "train_loss", "val_loss", "initial_val_loss", "skip_ridge", "model_alone_val_loss",
+                    "correction"):
+            history.setdefault(key, {})[ch] = hist.get(key)
         model.interval_scale[ch] = _calibrate(model, ch, data["val"])
     history["total_seconds"] = time.perf_counter() - t_start
     history["runs"] = {"train": len(train), "val": len(val)}
@@ -318,7 +334,27 @@ def _train_one(torch, model: LearnedModel, ch: str, train, val, config: TrainCon
             since += 1
             if since >= config.patience:
                 break
+    if model.kind == "hybrid":
+        # the model alone (no correction: the network's output pinned at the scaled zero) is a candidate too: a
+        # correction that does worse on held-out data than the model it corrects is switched off
+        alone = _model_alone(best if best is not None else net.state_dict())
+        net.load_state_dict(alone)
+        hist["model_alone_val_loss"] = alone_loss = val_loss()
+        hist["correction"] = "on"
+        if alone_loss <= best_loss:
+            best, best_loss = alone, alone_loss
+            hist["correction"] = "off: the model alone did better on the validation data"
     return LSTMWeights.from_state_dict(best, config.layers, config.dropout), hist
+
+
+def _model_alone(state: dict) -> dict:
+    """A network state whose output is the scaled zero (0.5, :class:`TargetScaler`): the hybrid gives its model."""
+    out = {k: t.detach().clone() for k, t in state.items()}
+    out["head.weight"].zero_()
+    out["head.bias"].fill_(0.5)
+    if "skip.weight" in out:
+        out["skip.weight"].zero_()
+    return out
 
 
 #: Ridges of the skip's least-squares start, relative to the mean diagonal of the normal equations, smallest first

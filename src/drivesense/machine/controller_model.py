@@ -272,6 +272,12 @@ class ControllerAxis:
         Relaxation time of the friction held at standstill [s] (0: it does not relax).
     dropped : dict of str to str
         Candidate terms the data did not determine, with the reason.
+    force_sign : int
+        +1, or -1 where the force reference of the identification reads the
+        process load against the drive (a dynamometer turned against the
+        machine's axis): the estimate is ``force_sign (K_m I - sum p phi)``,
+        so it follows the reference while ``K_m`` and the terms stay the
+        drive's (masses and friction >= 0).
     """
 
     K_m: float
@@ -283,8 +289,11 @@ class ControllerAxis:
     x_pre: float = 0.0
     hold_time: float = 0.0
     dropped: dict = field(default_factory=dict)
+    force_sign: int = 1
 
     def __post_init__(self) -> None:
+        if self.force_sign not in (1, -1) or isinstance(self.force_sign, bool):
+            raise ConfigError(f"force_sign must be 1 or -1, got {self.force_sign!r}")
         if not (math.isfinite(self.K_m) and self.K_m != 0):
             raise ConfigError(f"K_m must be a finite nonzero force constant [N/A], got {self.K_m!r}")
         if not (math.isfinite(self.v_eps) and self.v_eps > 0):
@@ -337,7 +346,7 @@ class ControllerAxis:
         ``terms``, ``dropped``."""
         return {"K_m": float(self.K_m), "K_m_ci95": float(self.K_m_ci95), "v_eps": float(self.v_eps),
                 "v_s": float(self.v_s), "period": float(self.period), "x_pre": float(self.x_pre),
-                "hold_time": float(self.hold_time),
+                "hold_time": float(self.hold_time), "force_sign": int(self.force_sign),
                 "terms": {t.name: [float(t.value), float(t.ci95)] for t in self.terms},
                 "dropped": dict(self.dropped)}
 
@@ -354,7 +363,7 @@ class ControllerAxis:
         """
         if not isinstance(values, Mapping):
             raise ConfigError(f"{source}: expected a table, got {type(values).__name__}")
-        known = {"K_m", "K_m_ci95", "v_eps", "v_s", "period", "x_pre", "hold_time", "terms", "dropped"}
+        known = {"K_m", "K_m_ci95", "v_eps", "v_s", "period", "x_pre", "hold_time", "terms", "dropped", "force_sign"}
         unknown = sorted(set(values) - known)
         missing = [k for k in ("K_m", "v_eps", "terms") if k not in values]
         if unknown or missing:
@@ -378,9 +387,15 @@ class ControllerAxis:
                        K_m_ci95=float(values.get("K_m_ci95", 0.0)), v_s=float(values.get("v_s", 0.0)),
                        period=float(values.get("period", 0.0)), x_pre=float(values.get("x_pre", 0.0)),
                        hold_time=float(values.get("hold_time", 0.0)),
-                       dropped=dict(values.get("dropped", {})))
+                       dropped=dict(values.get("dropped", {})), force_sign=_sign(values.get("force_sign", 1), source))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{source}: {exc}") from None
+
+
+def _sign(value, source: str) -> int:
+    if isinstance(value, bool) or value not in (1, -1):
+        raise ConfigError(f"{source}: force_sign must be 1 or -1, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -421,9 +436,9 @@ class ControllerModel:
             if not (math.isfinite(val) and val >= low):
                 raise ConfigError(f"ControllerModel {key} must be >= {low:g}, got {val!r}")
         for a, how in self.choice.items():
-            if a not in self.axes or how not in ("model", "regression"):
-                raise ConfigError(f"ControllerModel choice {a} = {how!r}: expected an axis of the model and "
-                                  "'model' or 'regression'")
+            if how not in ("model", "regression") or (how == "model" and a not in self.axes):
+                raise ConfigError(f"ControllerModel choice {a} = {how!r}: expected 'model' (for an axis of the "
+                                  "model) or 'regression'")
             if how == "regression" and (self.regression is None or a not in self.regression.weights):
                 raise ConfigError(f"ControllerModel choice {a} = 'regression' but the model holds no regression "
                                   f"of axis {a}")
@@ -516,7 +531,8 @@ class ControllerModel:
         if missing:
             raise MissingChannelError(f"axis {name}: the controller model needs channel(s) {', '.join(missing)}")
         current = np.asarray(arrays[f"{name}_current"], dtype=float)
-        return ax.K_m * current - self.resisting_force(name, arrays, state)
+        load = ax.K_m * current - self.resisting_force(name, arrays, state)
+        return load if ax.force_sign == 1 else -load
 
     def to_dict(self) -> dict:
         """Plain types (SI): ``window_s``, ``delay_s``, ``rate_hz``, one table per axis, and the regression

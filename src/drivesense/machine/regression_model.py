@@ -131,7 +131,7 @@ class RegressionModel:
         axis : str
             Axis letter.
         arrays : mapping of str to ndarray
-            Logged channels in SI.
+            Logged channels [A, m/s, m/s^2].
         """
         if axis not in self.weights:
             raise ConfigError(f"the regression has no axis {axis!r} (it has {', '.join(self.weights)})")
