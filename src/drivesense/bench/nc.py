@@ -39,6 +39,8 @@ _CALIBRATION_ORDER = ("pocket", "slots", "contour", "face_zigzag", "drilling")
 #: Targets of the issue: identified model vs regression (mean over axes), learned on 2 files vs regression.
 TARGET_MODEL_RATIO = 0.6
 TARGET_LEARNED_RATIO = 0.7
+#: The logger's glitches per minute of trace in the bench's traces (repaired with --bad-samples repair).
+GLITCHES_PER_MINUTE = 4.0
 #: Highest rate the learned methods work at in this bench [Hz] (faster traces are resampled).
 LEARNED_FS = 250.0
 
@@ -76,16 +78,30 @@ def nc_bench_sets(rate: float, *, machine_seed: int = 7, n_train: int = 5) -> di
         (calibration cuts, one per program) and ``held_out`` (every program
         again at other cutting parameters and seeds).
     """
+    from drivesense.io.plausibility import screen_recording
     from drivesense.sim import nc_programs, simulate_nc_program
+    from drivesense.sim.vmc import VMCSettings
 
     programs = nc_programs()
+    # the logger's glitches of real traces (angle wraps in the spindle speed, current spikes), repaired by name
+    glitchy = VMCSettings(glitches_per_minute=GLITCHES_PER_MINUTE)
+
+    def simulate_nc_program_(program, **kw):
+        import warnings
+
+        from drivesense.io.plausibility import BadSampleWarning
+
+        with warnings.catch_warnings():     # counted in the bench JSON (meta repaired_samples), not printed
+            warnings.simplefilter("ignore", BadSampleWarning)
+            return screen_recording(simulate_nc_program(program, settings=glitchy, **kw), "repair")
+
     # the calibration cut first: a pocket (plunge and contour) loads all three axes
     order = sorted(programs, key=lambda p: (p not in _CALIBRATION_ORDER, _CALIBRATION_ORDER.index(p)
                                             if p in _CALIBRATION_ORDER else 0))
-    train = [simulate_nc_program(order[i % len(order)], rate=rate, seed=100 + i, machine_seed=machine_seed)
+    train = [simulate_nc_program_(order[i % len(order)], rate=rate, seed=100 + i, machine_seed=machine_seed)
              for i in range(n_train)]
-    air = simulate_nc_program(order[0], rate=rate, air=True, seed=99, machine_seed=machine_seed)
-    held_out = [simulate_nc_program(p, rate=rate, seed=200 + i, machine_seed=machine_seed, **_other_params(i))
+    air = simulate_nc_program_(order[0], rate=rate, air=True, seed=99, machine_seed=machine_seed)
+    held_out = [simulate_nc_program_(p, rate=rate, seed=200 + i, machine_seed=machine_seed, **_other_params(i))
                 for i, p in enumerate(programs)]
     return {"air": air, "train": train, "held_out": held_out}
 
@@ -208,7 +224,10 @@ def run_rate(rate: float, *, learned_sizes: Sequence[int] = (1, 2, 5), progress:
     identify_seconds = time.perf_counter() - t0
     model = evaluate(ModelBased(report.model), sets["held_out"])
     auto = evaluate(ModelBased(report.model, per_axis="auto"), sets["held_out"])
+    traces = [sets["air"], *sets["train"], *sets["held_out"]]
     out = {"rate_hz": rate, "held_out_cuts": [r.meta.get("name") for r in sets["held_out"]],
+           "logger_glitches": {"injected": sum(len(r.meta.get("glitches", [])) for r in traces),
+                               "repaired": sum(len(r.meta.get("repaired_samples", [])) for r in traces)},
            "calibration_cut": cal.meta.get("name"), "air_cut": sets["air"].meta.get("name"),
            "simulate_seconds": sim_seconds, "regression": baseline,
            "model": {**model, "identify_seconds": identify_seconds, "ratio": ratios(model, baseline),

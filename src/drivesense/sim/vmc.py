@@ -113,6 +113,12 @@ class VMCSettings:
         of the true force, as the ideal switch sets).
     reference_cutoff_ratio : float
         Its cut-off as a share of the trace rate [-] (below Nyquist: < 0.5).
+    glitches_per_minute : float
+        The edge logger's glitches seen on real traces [1/min] (0: none, the
+        default): the spindle speed read across a wrap of its logged angle
+        (hundreds of thousands of rpm backwards) and isolated current spikes on
+        the axes, about a third each of speed and current.  Their truth is in
+        ``meta["glitches"]``; ``--bad-samples repair`` mends them.
     ideal : bool
         Set by :meth:`as_ideal`.
     """
@@ -131,6 +137,7 @@ class VMCSettings:
     force_noise: float = 1.5
     reference_order: int = 4
     reference_cutoff_ratio: float = 0.4
+    glitches_per_minute: float = 0.0
     ideal: bool = False
 
     def as_ideal(self) -> "VMCSettings":
@@ -141,7 +148,26 @@ class VMCSettings:
         VMCSettings
         """
         return replace(self, physics=self.physics.ideal(), servo=self.servo.as_ideal(), spindle_speed_noise=0.0,
-                       spindle_current_noise=0.0, force_noise=0.0, reference_order=0, ideal=True)
+                       spindle_current_noise=0.0, force_noise=0.0, reference_order=0, glitches_per_minute=0.0,
+                       ideal=True)
+
+
+def _logger_glitches(channels: dict, per_minute: float, rate: float, rng) -> list[dict]:
+    """Write the logger's glitches into the trace (in place); their truth as ``{channel, sample, value}``."""
+    n = channels["spindle_speed"].size
+    count = int(rng.poisson(per_minute * n / rate / 60.0)) if per_minute > 0 else 0
+    out = []
+    for _ in range(count):
+        i = int(rng.integers(2, n - 2))
+        if rng.random() < 0.35:     # the angle wraps between two logged samples: the speed reads a huge step back
+            ch, value = "spindle_speed", float(-rng.uniform(2e5, 4e5))
+        else:
+            ch = f"{AXES[int(rng.integers(3))]}_current"
+            spread = max(float(np.ptp(channels[ch])), 1.0)
+            value = float(channels[ch][i] + rng.choice([-1.0, 1.0]) * rng.uniform(8.0, 15.0) * spread)
+        channels[ch][i] = value
+        out.append({"channel": ch, "sample": i, "value": value})
+    return out
 
 
 def block_means(x: np.ndarray, q: int) -> np.ndarray:
@@ -351,6 +377,7 @@ def simulate_nc_program(program: str, *, rate: float = 50.0, air: bool = False, 
             else:
                 f = sps.sosfiltfilt(sos, force[i])[index] + settings.force_noise * rng.standard_normal(index.size)
             channels[f"force_{ax}"] = f
+    glitches = _logger_glitches(channels, settings.glitches_per_minute, rate, rng)
     moving = [a for i, a in enumerate(AXES) if np.ptp(pos[i]) > 1e-4]
     meta = {"name": f"vmc_{'air_' if air else ''}{program}_ap{cut.a_p * 1e3:g}_ae{cut.a_e * 1e3:g}"
                     f"_vf{cut.v_f * 60e3:g}_n{cut.n:g}_{rate:g}Hz",
@@ -366,6 +393,6 @@ def simulate_nc_program(program: str, *, rate: float = 50.0, air: bool = False, 
                        "full (LuGre friction with presliding/stiction, ripple, drift and nut load, ripple harmonics "
                        "varying along the travel, K_m droop, current-loop lag, yaw coupling, noise, quantisation, "
                        "machine spread and run-to-run variation)",
-            "reference_filter": None if air else reference,
+            "reference_filter": None if air else reference, "glitches": glitches,
             "provenance": [f"drivesense.sim.vmc {program} seed {seed} machine_seed {machine_seed}"]}
     return Recording.from_arrays(channels, fs=rate, t0=float(t[index[0]]), meta=meta)
