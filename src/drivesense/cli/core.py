@@ -438,12 +438,13 @@ def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, h
     for row in res["files"]:
         for a in ("x", "y", "z"):
             table.add_row(escape(row["file"]) if a == "x" else "", a,
-                          *(f"{row['nrmse'][m][a] * 100:.1f} %" for m in shown), f"{row['ratio']['auto'][a]:.2f}x")
+                          *("-" if row["nrmse"][m][a] is None else f"{row['nrmse'][m][a] * 100:.1f} %" for m in shown),
+                          f"{row['ratio']['auto'][a]:.2f}x")
     console.print(table)
     for m in shown[1:]:
         summary = res["summary"][m]
         console.print(f"{m} / regression: mean {summary['mean_ratio']:.2f}x, worst {summary['worst_ratio']:.2f}x, per "
-                      f"axis {', '.join(f'{a} {v:.2f}x' for a, v in summary['per_axis_mean_ratio'].items())}",
+                      f"axis {', '.join(f'{a} ' + ('-' if v is None else f'{v:.2f}x') for a, v in summary['per_axis_mean_ratio'].items())}",
                       markup=False)
     _print_targets("nc --real", res)
     write_json(json_path, {"machine": machine_info(), **result})

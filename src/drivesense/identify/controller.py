@@ -58,7 +58,7 @@ import numpy as np
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
 from drivesense.identify.kinematics import carried_first, check_kinematics, mass_floor, merge_bounds, offset_bound
 from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
-from drivesense.identify.physical_fit import AxisProblem, Constraints, fit_bounded, held_out_error, orientation, segment_ids
+from drivesense.identify.physical_fit import AxisProblem, Constraints, drive_sign, fit_bounded, held_out_error, segment_ids
 from drivesense.identify.term_choice import choose_terms, physical_terms, term_table
 from drivesense.identify.regression_check import compare_with_regression
 from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, axis_direction, feature_column,
@@ -364,11 +364,18 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     use_for_c = sliding | ~data.is_cal if sliding.sum() >= 50 else None
     problem = AxisProblem(X, data.arrays[f"{axis}_current"], data.force, data.is_cal, segments, list(names),
                           use_for_c=use_for_c)
-    sign, force_sign, sign_source = orientation(problem, list(range(len(names))), km)
-    if force_sign < 0:      # the reference reads the load against the drive: fit on the load, estimate its sign
-        problem = AxisProblem(X, data.arrays[f"{axis}_current"], -data.force, data.is_cal, segments, list(names),
-                              use_for_c=use_for_c)
+    sign, sign_source = drive_sign(problem, km)
     cons = Constraints(axis=axis, sign=sign, fixed_c=1.0 / km if km is not None else None, **dict(bounds or {}))
+    force_sign = 1.0
+    if problem.segments(True):
+        # does the reference read the load with the drive's sign, or against it (a dynamometer turned against the
+        # machine's axis)?  The physical fit of each orientation, the better one on the calibration samples
+        flipped = AxisProblem(X, data.arrays[f"{axis}_current"], -data.force, data.is_cal, segments, list(names),
+                              use_for_c=use_for_c)
+        every = list(range(len(names)))
+        sse = [_calibration_sse(p, fit_bounded(p, every, cons)) for p in (problem, flipped)]
+        if sse[1] < sse[0]:
+            problem, force_sign = flipped, -1.0
     names, ridge, shrink, mse = choose_terms(problem, cons, keep, dropped)
     if "stribeck" not in names:
         st.v_s = 0.0
@@ -405,6 +412,12 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
               "residual_rms_n": {"air": _rms(residual[~data.is_cal], abs(K)),
                                  "calibration": _rms(residual[data.is_cal], abs(K))}}
     return model, report, []
+
+
+def _calibration_sse(problem: AxisProblem, fit) -> float:
+    """Squared current residual [A^2] of a bounded fit on the calibration samples."""
+    r = problem.y - problem.X[:, fit.cols] @ fit.theta - fit.c * problem.force
+    return float(np.sum(r[problem.is_cal] ** 2))
 
 
 def _rms(x: np.ndarray, scale: float = 1.0) -> float | None:

@@ -36,7 +36,7 @@ from scipy.optimize import lsq_linear
 from drivesense.errors import IdentificationError
 from drivesense.identify.least_squares import residual_variance
 
-__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "orientation", "held_out_error", "segment_ids", "SIGN_TERMS",
+__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "drive_sign", "held_out_error", "segment_ids", "SIGN_TERMS",
            "RIDGE_GRID", "SHRINK_GRID"]
 
 #: Terms whose coefficient has the sign of ``c`` (the force constant's inverse): masses and friction levels.
@@ -380,59 +380,58 @@ def covariance(problem: AxisProblem, fit: BoundedFit, residual: np.ndarray, *, w
     return cov / np.outer(unscale, unscale)
 
 
-def orientation(problem: AxisProblem, cols: list, km: float | None = None) -> tuple[float, float, str]:
-    """The drive's sign ``s`` (of ``c = 1 / K_m``, shared by the masses and friction levels) and the force
-    reference's orientation ``s_F`` relative to the drive.
+def drive_sign(problem: AxisProblem, km: float | None = None) -> tuple[float, str]:
+    """The drive's sign ``s`` of ``c = 1 / K_m``, shared by the moved mass and the friction levels.
 
-    ``s`` comes from the friction levels -- friction always opposes the motion, so the current's sign against
-    ``sgn(v)`` is the drive's -- of the air cuts (force-free) where they move the axis both ways, else of the
-    joint fit, else from a given ``K_m``.  A dynamometer's axes need not be the machine's: the unconstrained
-    joint fit's ``c`` says whether the reference reads the process load with the drive's sign (``s_F = +1``) or
-    against it (``s_F = -1``, e.g. a dynamometer mounted turned); the model then keeps physical masses and
-    friction and its estimate follows the reference's sign.
+    Whatever resists the motion -- friction, and in a cut the feed force too -- makes the current follow
+    ``sgn(v)`` with the drive's sign, and the moved mass makes it follow the acceleration with the same sign.
+    A minimal least-squares fit ``I ~ 1 + a + sgn(v)`` over every trace (no force regressor, which in a cut is
+    collinear with the friction) gives both; the better determined one (larger t-statistic) decides.  A given
+    ``K_m`` decides instead.
 
     Parameters
     ----------
     problem : AxisProblem
-        The axis's data.
-    cols : list of int
-        Candidate columns.
+        The axis's data (its ``own`` feature columns are read by name: ``inertia_<axis>``, ``coulomb_*``).
     km : float, optional
-        A given force constant [N/A] (its sign is the drive's).
+        A given force constant [N/A].
 
     Returns
     -------
-    (s, s_F, source)
-        Signs (+1 or -1) and where ``s`` came from.
+    (s, source)
+        +1 or -1, and what decided it.
     """
-    names = [problem.names[i] for i in cols]
-    friction = [j for j, n in enumerate(names) if n in ("coulomb_pos", "coulomb_neg")]
-    free_lb, free_ub = np.full(len(cols), -np.inf), np.full(len(cols), np.inf)
-
-    def level(theta: np.ndarray) -> float:
-        return float(sum(theta[j] / problem.scale[cols[j]] for j in friction))
-
-    c_joint = None
-    if problem.segments(True):
-        idx = [*cols, problem.X.shape[1]]
-        segs = problem.segments()
-        G = _sum(problem, segs, "Gfit")[np.ix_(idx, idx)]
-        b = _sum(problem, segs, "bfit")[idx]
-        z = np.linalg.lstsq(G + 1e-9 * np.trace(G) * np.eye(len(idx)), b, rcond=None)[0]
-        c_joint, joint_level = float(z[-1]), level(z[:-1])
-    s, source = 0.0, ""
     if km is not None:
-        s, source = math.copysign(1.0, km), "the given K_m"
-    elif problem.has_air() and len(friction) == 2:
-        air_level = level(_stage_air(problem, cols, problem.segments(False), 1e-6, free_lb, free_ub))
-        if air_level != 0 and math.isfinite(air_level):
-            s, source = math.copysign(1.0, air_level), "the air cuts' friction"
-    if s == 0 and c_joint is not None and len(friction) == 2 and joint_level != 0:
-        s, source = math.copysign(1.0, joint_level), "the friction in the calibration cuts"
-    if s == 0:
-        if c_joint is None:
-            raise IdentificationError("neither air cuts moving the axis both ways nor calibration cuts fix the "
-                                      "sign of K_m")
-        s, source = math.copysign(1.0, c_joint), "the calibration force (the axis's friction is not excited)"
-    s_F = 1.0 if c_joint is None or c_joint == 0 else math.copysign(1.0, c_joint) * s
-    return s, s_F, source
+        return math.copysign(1.0, km), "the given K_m"
+    names = problem.names
+    own = next((i for i, n in enumerate(names) if n.startswith("inertia_") and n == _own_inertia(names)), None)
+    friction = [i for i, n in enumerate(names) if n in ("coulomb_pos", "coulomb_neg")]
+    cols = [np.ones(problem.y.size)]
+    labels = []
+    if own is not None and np.ptp(problem.X[:, own]) > 0:
+        cols.append(problem.X[:, own])
+        labels.append("the moved mass")
+    if friction and np.ptp(problem.X[:, friction].sum(axis=1)) > 0:
+        cols.append(problem.X[:, friction].sum(axis=1))      # max(sigma, 0) + min(sigma, 0) = sigma
+        labels.append("the friction")
+    if not labels:      # the axis never moves: only the calibration force can fix the sign
+        if not problem.segments(True):
+            raise IdentificationError("neither motion nor a calibration force fixes the sign of K_m")
+        A = np.column_stack([problem.X, problem.force])
+        z, *_ = np.linalg.lstsq(A, problem.y, rcond=None)
+        return math.copysign(1.0, z[-1] or 1.0), "the calibration force (the axis does not move)"
+    A = np.column_stack(cols)
+    z, *_ = np.linalg.lstsq(A, problem.y, rcond=None)
+    r = problem.y - A @ z
+    var = float(r @ r) / max(problem.y.size - A.shape[1], 1)
+    cov = var * np.linalg.pinv(A.T @ A)
+    t = [abs(z[k]) / math.sqrt(cov[k, k]) if cov[k, k] > 0 else 0.0 for k in range(1, A.shape[1])]
+    k = int(np.argmax(t))
+    if not z[k + 1] or not math.isfinite(z[k + 1]):
+        raise IdentificationError("neither motion nor friction fixes the sign of K_m")
+    return math.copysign(1.0, z[k + 1]), f"{labels[k]} (t = {t[k]:.3g})"
+
+
+def _own_inertia(names: Sequence[str]) -> str:
+    """``inertia_<own>``: the first inertia term of a candidate list (the identification puts its own first)."""
+    return next((n for n in names if n.startswith("inertia_")), "")
