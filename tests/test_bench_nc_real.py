@@ -120,7 +120,7 @@ def test_the_identification_is_reported(result):
         assert {"K_m", "terms", "active_bounds", "dropped", "held_out"} <= set(ident["axes"][a])
         assert f"inertia_{a}" in ident["axes"][a]["terms"]
     assert set(ident["regression_check"]) == set(AXES)
-    assert set(ident["choice"]) == set(AXES) and all(v in ("model", "regression") for v in ident["choice"].values())
+    assert set(ident["choice"]) == set(AXES) and all(v in ("model", "sliding", "regression") for v in ident["choice"].values())
 
 
 def test_every_other_cut_is_scored_per_axis_with_ratios(result):

@@ -358,7 +358,7 @@ def test_identify_and_estimate_read_the_export_with_columns(cli_exports, tmp_pat
     ident = json.loads((tmp_path / "id.json").read_text())
     assert set(ident["regression_check"]) == {"x", "y", "z"}
     for a, check in ident["regression_check"].items():
-        assert check["choice"] in ("model", "regression"), a
+        assert check["choice"] in ("model", "sliding", "regression"), a
         assert check["model_nrmse"] > 0 and check["regression_nrmse"] > 0
     assert ident["kinematics"] == {"vertical": "z", "carries": {"y": ["x"]}}
 
@@ -367,7 +367,7 @@ def test_identify_and_estimate_read_the_export_with_columns(cli_exports, tmp_pat
     assert res.exit_code == 0, res.output
     est = json.loads((tmp_path / "e.json").read_text())
     assert set(est["per_axis"]) == {"x", "y", "z"}
-    assert all(v in ("model", "regression") for v in est["per_axis"].values())
+    assert all(v in ("model", "sliding", "regression") for v in est["per_axis"].values())
     assert est["per_axis"] == {a: c["choice"] for a, c in ident["regression_check"].items()}
     assert est["samples"] == read_trace(cli_exports / "P.csv", columns=KIT).n_samples
     for a in "xyz":      # the simulator's true force is in the export: scored, and well within 50 %

@@ -160,10 +160,11 @@ def test_the_regression_check_compares_held_out_errors_and_sets_the_choice(ident
     rep, cal = identified
     assert set(rep.regression_check) == {"x", "y"}
     for a, row in rep.regression_check.items():
-        assert row["ratio"] == pytest.approx(row["model_rms_n"] / row["regression_rms_n"])
-        assert row["choice"] == ("model" if row["ratio"] <= 1 else "regression") == rep.model.choice[a]
+        assert row["ratio"] == pytest.approx(row["nrmse"]["model"] / row["nrmse"]["regression"])
+        assert row["choice"] == rep.model.choice[a] and row["choice"] in ("model", "sliding", "regression")
+        assert row["samples"]["calibration"] > 0 and row["samples"]["air_inside_the_cuts_motion"] > 0
     # the truth is the model's own structure: the physics wins here
-    assert all(row["ratio"] < 1 for row in rep.regression_check.values())
+    assert all(row["ratio"] < 1 and row["choice"] != "regression" for row in rep.regression_check.values())
     assert rep.model.regression is not None and set(rep.model.regression.weights) == {"x", "y"}
 
 

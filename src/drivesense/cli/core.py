@@ -446,6 +446,12 @@ def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, h
         console.print(f"{m} / regression: mean {summary['mean_ratio']:.2f}x, worst {summary['worst_ratio']:.2f}x, per "
                       f"axis {', '.join(f'{a} ' + ('-' if v is None else f'{v:.2f}x') for a, v in summary['per_axis_mean_ratio'].items())}",
                       markup=False)
+    for row in res["files"]:
+        odd = {a: v["follows"] for a, v in row["reference_frame"].items() if not v["as_calibrated"]}
+        if odd:
+            warn(f"{row['file']}: the reference's frame differs from the calibration cut's (the estimate of "
+                 + ", ".join(f"{a} follows {f}" for a, f in odd.items()) + "): a dynamometer or part turned on "
+                 "the table; no method can be scored fairly on it")
     _print_targets("nc --real", res)
     write_json(json_path, {"machine": machine_info(), **result})
 

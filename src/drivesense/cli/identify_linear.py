@@ -120,8 +120,11 @@ def estimate_model(trace: Path, est, out: Path, json_path: Optional[Path] = None
     table = Table(title=escape(f"{est.name} estimate of {trace.name}"), show_header=False)
     table.add_row("samples", f"{rec.n_samples} at {rec.fs:g} Hz")
     if getattr(est, "per_axis", "model") == "auto":
-        info["per_axis"] = {a: "regression" if a in est.regression_axes else "model" for a in est.axes}
-        table.add_row("per axis (auto)", ", ".join(f"{a}: {how}" for a, how in info["per_axis"].items()))
+        info["per_axis"] = {a: "regression" if a in est.regression_axes else "sliding" if a in est.sliding_axes
+                            else "model" for a in est.axes}
+        table.add_row("per axis (auto)", ", ".join(f"{a}: {how}" for a, how in info["per_axis"].items())
+                      + ("  (sliding: the model while the axis moves, the regression while it stands)"
+                         if "sliding" in info["per_axis"].values() else ""))
     table.add_row("latency", f"{info['latency_s'] * 1e3:.3f} ms (the method's and the trace's declared delay)")
     window = tuple(rec.meta.get("score_window", (rec.t0, rec.t0 + rec.duration)))
     for ch in force.channels:

@@ -147,17 +147,17 @@ def identify_nc(
             bounds.add_row(a, n, escape(why))
         console.print(bounds)
     if report.regression_check:
-        check = Table(title="Held-out error against the regression (calibration segments and air cuts)")
-        for col in ("axis", "model NRMSE", "regression NRMSE", "ratio", "--per-axis auto"):
+        check = Table(title="Held-out NRMSE against the regression (calibration segments; air cuts within the "
+                            "cuts' motion)")
+        for col in ("axis", "model", "sliding", "regression", "--per-axis auto"):
             check.add_column(col, justify="right" if col != "axis" else "left")
         for a, row in report.regression_check.items():
-            if "ratio" not in row:
-                reg = row.get("regression_nrmse")
-                check.add_row(a, "no model", "-" if reg is None else f"{reg * 100:.1f} %", "-", row["choice"])
-                continue
-            check.add_row(a, f"{row['model_nrmse'] * 100:.1f} %", f"{row['regression_nrmse'] * 100:.1f} %",
-                          f"{row['ratio']:.2f}x", row["choice"])
+            nrmse = row.get("nrmse", {})
+            check.add_row(a, *("-" if nrmse.get(k) is None else f"{nrmse[k] * 100:.1f} %"
+                               for k in ("model", "sliding", "regression")), row["choice"])
         console.print(check)
+        console.print("sliding: the model while the axis moves, the regression while it stands (its guides hold the "
+                      "force its current cannot see)", markup=False)
         for a, row in report.regression_check.items():
             if row.get("choice") == "regression":
                 warn(row["note"] if row["note"].startswith("no physical model") else f"axis {a}: {row['note']}")

@@ -51,7 +51,7 @@ from drivesense.errors import ConfigError, NotFittedError
 from drivesense.estimate.base import ForceEstimator
 from drivesense.identify.controller import identify_controller
 from drivesense.identify.linear_axis import run_identification
-from drivesense.machine.controller_model import ControllerModel
+from drivesense.machine.controller_model import STANDING_SPEED, ControllerModel
 from drivesense.machine.linear_motor import AXES, ThreeAxisModel
 from drivesense.machine.presliding import carried_presliding_direction
 from drivesense.recording import Recording
@@ -132,7 +132,7 @@ class ModelBased(ForceEstimator):
         """
         if isinstance(self.model, ControllerModel):
             physical = [a for a in self.axes if a not in self.regression_axes]
-            extra = self.model.regression.input_channels if self.regression_axes else ()
+            extra = self.model.regression.input_channels if self.regression_axes or self.sliding_axes else ()
             return tuple(dict.fromkeys((*self.model.input_channels(physical), *extra))) if physical else extra
         return tuple(f"{a}_{c}" for a in self.axes for c in MODEL_INPUTS)
 
@@ -144,9 +144,17 @@ class ModelBased(ForceEstimator):
     @property
     def regression_axes(self) -> tuple[str, ...]:
         """Axes estimated by the stored regression (``per_axis="auto"`` where the model lost on held-out data)."""
+        return self._chosen("regression")
+
+    @property
+    def sliding_axes(self) -> tuple[str, ...]:
+        """Axes estimated by the model while they slide and by the regression while they stand (``per_axis="auto"``)."""
+        return self._chosen("sliding")
+
+    def _chosen(self, how: str) -> tuple[str, ...]:
         if self.per_axis != "auto" or not isinstance(self.model, ControllerModel):
             return ()
-        return tuple(a for a in self.axes if self.model.choice.get(a) == "regression")
+        return tuple(a for a in self.axes if self.model.choice.get(a) == how)
 
     def fit(self, runs: Sequence[Recording], **kwargs) -> "ModelBased":
         """Identify the model: four-step from air moves, or the controller-rate model.
@@ -206,9 +214,17 @@ class ModelBased(ForceEstimator):
         """
         model = self._require_model()
         if isinstance(model, ControllerModel):
-            fallback = self.regression_axes
-            return {f"force_{a}": model.regression.predict(a, arrays) if a in fallback
-                    else model.process_force(a, arrays, state) for a in self.axes}
+            fallback, sliding = self.regression_axes, self.sliding_axes
+            out = {}
+            for a in self.axes:
+                if a in fallback:
+                    out[f"force_{a}"] = model.regression.predict(a, arrays)
+                    continue
+                out[f"force_{a}"] = model.process_force(a, arrays, state)
+                if a in sliding:        # a standing axis's guides hold the force its current cannot see
+                    standing = np.abs(np.asarray(arrays[f"{a}_velocity"], dtype=float)) <= STANDING_SPEED
+                    out[f"force_{a}"] = np.where(standing, model.regression.predict(a, arrays), out[f"force_{a}"])
+            return out
         out = {}
         for a in self.axes:
             i, s, v, acc = (arrays[f"{a}_{c}"] for c in MODEL_INPUTS)
@@ -255,7 +271,9 @@ class ModelBased(ForceEstimator):
         """Eq. 2 and the friction direction used (or the controller model's terms), for the provenance."""
         if isinstance(self.model, ControllerModel):
             kept = {a: "the regression (--per-axis auto)" if a in self.regression_axes
-                    else f"{len(self.model.axis(a).terms)} terms" for a in self.axes}
+                    else f"{len(self.model.axis(a).terms)} terms" + (", the regression while it stands (--per-axis auto)"
+                                                                      if a in self.sliding_axes else "")
+                    for a in self.axes}
             return (f"controller-rate model K_m I - sum p phi identified at {self.model.rate_hz:g} Hz "
                     f"({', '.join(f'{a}: {n}' for a, n in kept.items())})")
         pre = [a for a in self.axes if self.uses_presliding(a)]

@@ -36,7 +36,7 @@ from scipy.optimize import lsq_linear
 from drivesense.errors import IdentificationError
 from drivesense.identify.least_squares import residual_variance
 
-__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "drive_sign", "held_out_error", "segment_ids", "SIGN_TERMS",
+__all__ = ["AxisProblem", "BoundedFit", "Constraints", "fit_bounded", "covariance", "drive_sign", "held_out_residuals", "held_out_error", "segment_ids", "SIGN_TERMS",
            "RIDGE_GRID", "SHRINK_GRID"]
 
 #: Terms whose coefficient has the sign of ``c`` (the force constant's inverse): masses and friction levels.
@@ -316,12 +316,26 @@ def held_out_error(problem: AxisProblem, cols: list, cons: Constraints, *, ridge
     air_only : bool
         Score only the air segments.
     """
-    air_all, cal_all = problem.segments(False), problem.segments(True)
     sse, n = 0.0, 0
-    cached = None
-    for g in (cal_all if cal_only else air_all if air_only else problem.segments()):
+    segs = problem.segments(True) if cal_only else problem.segments(False) if air_only else problem.segments()
+    for g, ts, c in _folds(problem, cols, cons, ridge, shrink, segs):
         held = problem.grams[g]
-        if held["cal"]:
+        idx = [*cols, problem.X.shape[1]]
+        z = np.append(ts, c)
+        G, b = held["G"][np.ix_(idx, idx)], held["b"][idx]
+        sse += max(held["yy"] - 2.0 * float(z @ b) + float(z @ G @ z), 0.0)
+        n += held["n"]
+    if n == 0:
+        raise IdentificationError("too few segments for a held-out error (need two air or two calibration segments)")
+    return sse / n
+
+
+def _folds(problem: AxisProblem, cols: list, cons: Constraints, ridge: float, shrink: float, segs):
+    """``(segment, theta_scaled, c)`` of the fit without each segment of `segs` (those that can be left out)."""
+    air_all, cal_all = problem.segments(False), problem.segments(True)
+    cached = None
+    for g in segs:
+        if problem.grams[g]["cal"]:
             if len(cal_all) < 2 and not air_all:
                 continue
             if cached is None:
@@ -331,14 +345,32 @@ def held_out_error(problem: AxisProblem, cols: list, cons: Constraints, *, ridge
             if len(air_all) < 2:
                 continue
             ts, c, _ = _fit_scaled(problem, cols, cons, ridge, shrink, [h for h in air_all if h != g], cal_all)
-        idx = [*cols, problem.X.shape[1]]
-        z = np.append(ts, c)
-        G, b = held["G"][np.ix_(idx, idx)], held["b"][idx]
-        sse += max(held["yy"] - 2.0 * float(z @ b) + float(z @ G @ z), 0.0)
-        n += held["n"]
-    if n == 0:
-        raise IdentificationError("too few segments for a held-out error (need two air or two calibration segments)")
-    return sse / n
+        yield g, ts, c
+
+
+def held_out_residuals(problem: AxisProblem, cols: list, cons: Constraints, *, ridge: float = 1e-6,
+                       shrink: float = 1e6) -> np.ndarray:
+    """The current residual of every sample [A] from the fit without its segment (NaN where it cannot be left out).
+
+    Parameters
+    ----------
+    problem : AxisProblem
+        The axis's data.
+    cols : list of int
+        Columns (terms) to use.
+    cons : Constraints
+        Sign and bounds.
+    ridge : float
+        As :func:`fit_bounded` [-].
+    shrink : float
+        As :func:`fit_bounded` [-].
+    """
+    out = np.full(problem.y.size, np.nan)
+    Xs = problem.X[:, cols] / problem.scale[cols]
+    for g, ts, c in _folds(problem, cols, cons, ridge, shrink, problem.segments()):
+        rows = problem.segment == g
+        out[rows] = problem.y[rows] - Xs[rows] @ ts - c * problem.force[rows]
+    return out
 
 
 def _cal_fold(problem, cols, cons, ridge, shrink, air_theta, cal_segs) -> tuple[np.ndarray, float]:

@@ -31,7 +31,7 @@ from drivesense.learn.features import (INPUT_CHANNELS, TARGET_CHANNELS, Scaler, 
 from drivesense.learn.kernel import LSTMState, LSTMWeights, run_lstm, skip_to_torch
 from drivesense.recording import Recording
 
-__all__ = ["TrainConfig", "LearnedModel", "require_torch", "MODEL_FORMAT"]
+__all__ = ["TrainConfig", "LearnedModel", "require_torch", "MODEL_FORMAT", "hybrid_base"]
 
 
 def require_torch():
@@ -381,7 +381,7 @@ class LearnedModel:
         """
         x = self.scaled_inputs(arrays, input_state)
         if self.kind == "hybrid":
-            return x, ModelBased(self.model_based).process(model_state, arrays)
+            return x, hybrid_base(self.model_based).process(model_state, arrays)
         return x, {ch: np.zeros(len(x)) for ch in TARGET_CHANNELS}
 
     def network_input(self, x: np.ndarray, base: np.ndarray, channel: str) -> np.ndarray:
@@ -587,6 +587,22 @@ class LearnedModel:
         return cls(cfg["kind"], config, Scaler.from_dict(cfg["input_scaler"]),
                    {k: TargetScaler(v) for k, v in cfg["target_scalers"].items()}, weights,
                    cfg.get("force_scale", {}), cfg.get("interval_scale", {}), cfg.get("history", {}), model_based)
+
+
+def hybrid_base(model_based) -> ModelBased:
+    """The estimate a hybrid corrects: the model, with the regression ``identify nc`` chose on an axis where the
+    physics lost or could not be identified (``--per-axis auto``).
+
+    Parameters
+    ----------
+    model_based : ThreeAxisModel or ControllerModel
+        The identified axes.
+    """
+    from drivesense.machine.controller_model import ControllerModel
+
+    if isinstance(model_based, ControllerModel) and model_based.regression is not None and model_based.choice:
+        return ModelBased(model_based, per_axis="auto")
+    return ModelBased(model_based)
 
 
 def _to_state_dict(w: LSTMWeights, torch) -> dict:

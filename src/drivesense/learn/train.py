@@ -153,11 +153,13 @@ def train_model(kind: str, runs: Sequence[Recording], *, config: TrainConfig | N
         model_based = model_based.model
     if kind == "hybrid" and model_based is None:
         raise ConfigError("a hybrid needs the identified axes (model_based=...) for its model part")
-    missing = [a for a in ("x", "y", "z") if kind == "hybrid" and hasattr(model_based, "axes")
-               and isinstance(model_based.axes, dict) and a not in model_based.axes]
-    if missing:
-        raise ConfigError(f"a hybrid corrects the model of axes x, y and z; the identified model lacks "
-                          f"{', '.join(missing)} (identify nc left it out: see its warnings, or give --km)")
+    if kind == "hybrid":
+        from drivesense.learn.model import hybrid_base
+
+        missing = [a for a in ("x", "y", "z") if a not in hybrid_base(model_based).axes]
+        if missing:
+            raise ConfigError(f"a hybrid corrects an estimate of axes x, y and z; the identified model lacks "
+                              f"{', '.join(missing)} (identify nc left it out: see its warnings, or give --km)")
     train = [r for r in runs if r.meta.get("split", "train") == "train"]
     val = [r for r in runs if r.meta.get("split") == "val"]
     if kind == "hybrid" and not val and len(train) >= 2 and not any("split" in r.meta for r in train):

@@ -68,9 +68,14 @@ from drivesense.errors import ConfigError, MissingChannelError
 from drivesense.machine.presliding import carried_presliding_direction
 from drivesense.machine.regression_model import RegressionModel
 
-__all__ = ["ControllerTerm", "ControllerAxis", "ControllerModel", "TERM_UNITS", "term_unit",
+__all__ = ["ControllerTerm", "ControllerAxis", "ControllerModel", "TERM_UNITS", "STANDING_SPEED", "CHOICES", "term_unit",
            "friction_direction", "axis_direction", "feature_column", "features_needed"]
 
+#: Speed below which an axis counts as standing for a ``"sliding"`` choice [m/s].
+STANDING_SPEED = 1e-3
+#: What ``--per-axis auto`` can take on an axis: the model, the regression, or the model while the axis slides and
+#: the regression while it stands (its guides hold the force its current cannot see).
+CHOICES = ("model", "sliding", "regression")
 #: Unit of each term's coefficient, by name prefix.
 TERM_UNITS = {"offset": "N", "position": "N/m", "inertia": "kg", "coulomb": "N", "viscous": "N s/m",
               "stribeck": "N", "ripple": "N"}
@@ -417,8 +422,10 @@ class ControllerModel:
         The regression fitted on the same calibration cuts (``identify nc``'s
         built-in check; ``estimate --method regression`` and ``--per-axis auto``).
     choice : dict of str to str
-        Per axis ``"model"`` or ``"regression"``: the smaller held-out error
-        (what ``--per-axis auto`` takes; empty: the model everywhere).
+        Per axis ``"model"``, ``"sliding"`` (the model while the axis moves
+        faster than :data:`STANDING_SPEED`, the regression while it stands) or
+        ``"regression"``: the smallest held-out error (what ``--per-axis auto``
+        takes; empty: the model everywhere).
     """
 
     axes: dict
@@ -436,11 +443,11 @@ class ControllerModel:
             if not (math.isfinite(val) and val >= low):
                 raise ConfigError(f"ControllerModel {key} must be >= {low:g}, got {val!r}")
         for a, how in self.choice.items():
-            if how not in ("model", "regression") or (how == "model" and a not in self.axes):
-                raise ConfigError(f"ControllerModel choice {a} = {how!r}: expected 'model' (for an axis of the "
-                                  "model) or 'regression'")
-            if how == "regression" and (self.regression is None or a not in self.regression.weights):
-                raise ConfigError(f"ControllerModel choice {a} = 'regression' but the model holds no regression "
+            if how not in CHOICES or (how != "regression" and a not in self.axes):
+                raise ConfigError(f"ControllerModel choice {a} = {how!r}: expected 'model' or 'sliding' (for an axis "
+                                  "of the model) or 'regression'")
+            if how != "model" and (self.regression is None or a not in self.regression.weights):
+                raise ConfigError(f"ControllerModel choice {a} = {how!r} but the model holds no regression "
                                   f"of axis {a}")
 
     def axis(self, name: str) -> ControllerAxis:
