@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from drivesense.bench.nc_real import is_air_cut, real_bench_files, run_real_nc_bench
 from drivesense.cli import app
 from drivesense.errors import ConfigError
+from cli_checks import one_line, one_line_error
 
 runner = CliRunner()
 
@@ -27,24 +28,6 @@ def invoke(*args, env: dict | None = None):
     return runner.invoke(app, [str(a) for a in args], env=env)
 
 
-def one_line_error(res, *needles: str) -> str:
-    """The command failed with exit 2 and one ``error:`` line holding every needle."""
-    assert res.exit_code == 2, res.output
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    errors = [line for line in lines if line.startswith("error:")]
-    assert len(errors) == 1, res.output
-    for needle in needles:
-        assert needle in errors[0], (needle, res.output)
-    assert "Traceback" not in res.output
-    return errors[0]
-
-
-def one_line(exc_info, *needles: str) -> str:
-    text = str(exc_info.value)
-    assert "\n" not in text, text
-    for needle in needles:
-        assert needle in text, (needle, text)
-    return text
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ from drivesense.cli import app
 from drivesense.errors import ConfigError, UnitError
 from drivesense.io import ColumnMap, read_column_map, read_csv, read_trace, resolve_column_map, shipped_maps, write_csv
 from drivesense.io.column_map import ColumnSpec
+from cli_checks import one_line, one_line_error
 
 runner = CliRunner()
 
@@ -32,25 +33,6 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-def one_line_error(res, *needles: str) -> str:
-    """The command failed with exit 2 and one ``error:`` line holding every needle."""
-    assert res.exit_code == 2, res.output
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    errors = [line for line in lines if line.startswith("error:")]
-    assert len(errors) == 1, res.output
-    for needle in needles:
-        assert needle in errors[0], (needle, res.output)
-    assert "Traceback" not in res.output
-    return errors[0]
-
-
-def one_line(exc_info, *needles: str) -> str:
-    """The message of a raised ConfigError: one line holding every needle."""
-    text = str(exc_info.value)
-    assert "\n" not in text, text
-    for needle in needles:
-        assert needle in text, (needle, text)
-    return text
 
 
 def write_map(folder: Path, text: str, name: str = "map.toml") -> Path:

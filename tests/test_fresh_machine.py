@@ -20,6 +20,7 @@ from drivesense.cli import app
 from drivesense.errors import ConfigError, SampleRateError
 from drivesense.io import read_recording, write_recording
 from drivesense.recording import Recording
+from cli_checks import one_line_error
 from servers import run_until_cuts
 
 runner = CliRunner()
@@ -29,17 +30,6 @@ ROOT = Path(__file__).resolve().parent.parent
 def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
-
-def one_line_error(res, *needles: str) -> str:
-    """The command failed with exit 2 and one ``error:`` line holding every needle."""
-    assert res.exit_code == 2, res.output
-    lines = [line for line in res.output.splitlines() if line.strip()]
-    errors = [line for line in lines if line.startswith("error:")]
-    assert len(errors) == 1, res.output
-    for needle in needles:
-        assert needle in errors[0], (needle, res.output)
-    assert "Traceback" not in res.output
-    return errors[0]
 
 
 def decimated(rec: Recording, factor: int) -> Recording:
