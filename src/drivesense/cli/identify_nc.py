@@ -125,6 +125,9 @@ def identify_nc(
     for a in axes:
         table.add_column(a, justify="right")
     table.add_row("K_m [N/A]", *(_fmt(model.axis(a).K_m, model.axis(a).K_m_ci95) for a in axes))
+    if any(model.axis(a).force_sign < 0 for a in axes):
+        table.add_row("reference reads the load", *("against the drive (-1)" if model.axis(a).force_sign < 0
+                                                    else "with the drive (+1)" for a in axes))
     names = list(dict.fromkeys(t.name for a in axes for t in model.axis(a).terms))
     for n in names:
         cells = []
@@ -172,6 +175,10 @@ def identify_nc(
         console.print(dropped)
     for line in report.limits:
         console.print(f"limit: {line}", markup=False)
+    for a in axes:
+        note = report.axes[a].get("force_sign_note")
+        if note:
+            console.print(f"axis {a}: {note}", markup=False)
     for line in report.warnings:
         warn(line)
     console.print(f"wrote {out}", markup=False)
