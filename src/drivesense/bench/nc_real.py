@@ -81,13 +81,23 @@ def real_bench_files(folder: str | Path, calibration: str | None = None, air: st
     return {"calibration": cal, "air": air_path, "held_out": [p for p in cuts if p != cal]}
 
 
-def _train_hybrid(model, cal: Recording, held_out: list, n: int, read) -> tuple[dict, list]:
-    """The hybrid on the calibration cut (and the held-out cut nearest to it by name), small-set defaults."""
+def _train_hybrid(model, cal: Recording, held_out: list, n: int, read, regression) -> tuple[dict, list]:
+    """The hybrid on the calibration cut (and the held-out cut nearest to it by name whose reference frame is the
+    calibration cut's), small-set defaults."""
     from drivesense.learn import Hybrid
     from drivesense.learn.model import TrainConfig
 
-    extra_paths = sorted(held_out, key=lambda p: -len(os.path.commonprefix([p.stem, cal.name or ""])))[:n - 1]
-    extra = [read(p) for p in extra_paths]
+    extra_paths, extra = [], []
+    for path in sorted(held_out, key=lambda p: -len(os.path.commonprefix([p.stem, cal.name or ""]))):
+        if len(extra) >= n - 1:
+            break
+        rec = read(path)
+        if all(f"force_{a}" in rec for a in AXES) and all(v["as_calibrated"] for v in
+                                                           _frame(regression.estimate(rec), rec).values()):
+            extra_paths.append(path)
+            extra.append(rec)
+    if len(extra) < n - 1:
+        raise ConfigError(f"--hybrid {n}: no held-out cut with the calibration cut's reference frame to train on")
     started = time.perf_counter()
     est = Hybrid(config=TrainConfig(seed=0)).fit([cal, *extra], model_based=model)
     seconds = time.perf_counter() - started
@@ -183,7 +193,7 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
         learned = {"skipped": "the hybrid corrects an estimate of x, y and z; identify nc left out "
                               + ", ".join(a for a in AXES if a not in methods["auto"].axes)}
     elif hybrid_cuts:
-        learned, extra = _train_hybrid(report.model, cal_rec, held_out, hybrid_cuts, read)
+        learned, extra = _train_hybrid(report.model, cal_rec, held_out, hybrid_cuts, read, methods["regression"])
         methods["hybrid"] = learned.pop("estimator")
         methods["regression_same_cuts"] = Regression(axes=AXES).fit([cal_rec, *extra])
         held_out = [p for p in held_out if p.name not in learned["train_files"]]
