@@ -421,6 +421,10 @@ def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, h
     from drivesense.bench.nc_real import run_real_nc_bench
     from drivesense.cli.identify_nc import parse_carries
 
+    from drivesense.errors import ConfigError
+
+    if hybrid not in (0, 1, 2):
+        raise ConfigError(f"--hybrid {hybrid}: train the hybrid on 1 or 2 cuts (0: not at all)")
     with progress_bar() as progress, show_warnings():
         task = progress.add_task(f"bench nc --real {folder.name}", total=None)
         result = run_real_nc_bench(folder, columns=columns, calibration=calibration, air=air, vertical=vertical,
