@@ -420,9 +420,11 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
 
 
 def _calibration_sse(problem: AxisProblem, fit) -> float:
-    """Squared current residual [A^2] of a bounded fit on the calibration samples."""
+    """Squared current residual [A^2] of a bounded fit on the calibration samples the force constant is fitted on
+    (where the axis slides: a standing axis's nut may hold the force)."""
     r = problem.y - problem.X[:, fit.cols] @ fit.theta - fit.c * problem.force
-    return float(np.sum(r[problem.is_cal] ** 2))
+    rows = problem.is_cal if problem.use_for_c is None else problem.is_cal & problem.use_for_c
+    return float(np.sum(r[rows] ** 2))
 
 
 def _rms(x: np.ndarray, scale: float = 1.0) -> float | None:
