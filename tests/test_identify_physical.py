@@ -236,3 +236,14 @@ def test_an_axis_the_physics_cannot_identify_gets_the_regression_under_auto(tmp_
     got = auto.estimate(cal)
     assert np.sqrt(np.mean((got["force_y"] - cal["force_y"]) ** 2)) < 0.1 * np.ptp(cal["force_y"])
     assert ModelBased(read_axes_file(path)).axes == ("x",)
+
+
+def test_with_two_calibration_cuts_the_check_leaves_out_a_whole_cut():
+    air = _trace(16, name="air")
+    cuts = [_trace(17, force=_cutting, name="cut a"), _trace(18, force=_cutting, name="cut b")]
+    rep = identify_controller([air, *cuts])
+    for row in rep.regression_check.values():
+        assert row["calibration_folds"] == "leave-one-cut-out"
+        assert row["samples"]["calibration"] == sum(c.n_samples for c in cuts)
+    one = identify_controller([air, cuts[0]])
+    assert all(r["calibration_folds"] == "leave-one-segment-out" for r in one.regression_check.values())

@@ -388,6 +388,14 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     fit = fit_bounded(problem, cols, cons, ridge=ridge, shrink=shrink)
     K, K_ci, terms, active = physical_terms(axis, problem, fit, cons, km)
     held_residual = held_out_residuals(problem, cols, cons, ridge=ridge, shrink=shrink)
+    trace = np.repeat(np.arange(lengths.size), lengths)
+    if np.unique(trace[data.is_cal]).size >= 2:
+        # two calibration cuts or more: the check leaves out a whole cut (another program or material), which
+        # segments of one cut cannot stand for; the air cuts keep their segments
+        per_cut = AxisProblem(X, problem.y, problem.force, data.is_cal, trace, list(problem.names),
+                              use_for_c=use_for_c)
+        held_residual = np.where(data.is_cal, held_out_residuals(per_cut, cols, cons, ridge=ridge, shrink=shrink),
+                                 held_residual)
     cal_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, cal_only=True) \
         if len(problem.segments(True)) >= 2 else float("nan")
     air_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, air_only=True) \

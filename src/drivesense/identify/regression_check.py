@@ -5,7 +5,9 @@ is fitted on the same calibration cuts.  Both are scored sample by sample on
 held-out data:
 
 * the calibration segments, leave-one-segment-out (the same segments for
-  both: each left-out segment predicted by a fit on the others);
+  both: each left-out segment predicted by a fit on the others), or with two
+  calibration cuts or more, leave-one-cut-out (another program or material
+  is what the next cut will be);
 * the air cuts (force zero), which the regression never sees and the model
   scores leave-one-segment-out -- only their samples inside the calibration
   cuts' motion (speeds and accelerations of every axis no larger than in the
@@ -81,7 +83,9 @@ def _regression_held_out(cal: Sequence[Recording], axes: Sequence[str], features
     scale = np.sqrt(np.mean(X ** 2, axis=0))
     scale[~(scale > 0)] = 1.0
     Xs = X / scale
-    seg = segment_ids([r.n_samples for r in cal], cal[0].fs)
+    lengths = [r.n_samples for r in cal]
+    # with two calibration cuts or more, whole cuts are left out (as the model's check does)
+    seg = np.repeat(np.arange(len(cal)), lengths) if len(cal) >= 2 else segment_ids(lengths, cal[0].fs)
     out = {}
     for a in axes:
         y = target[a]
@@ -154,6 +158,7 @@ def compare_with_regression(traces: Sequence[Recording], axes: Sequence[str], da
             for i, r in enumerate(cal)]
     regression = RegressionModel.fit(runs, axes, features)
     held = _regression_held_out(cal, axes, features, target)
+    folds = "leave-one-cut-out" if len(cal) >= 2 else "leave-one-segment-out"
     inside = _envelope(air, cal)
     choice, report = {}, {}
     for a in axes:
@@ -194,7 +199,8 @@ def compare_with_regression(traces: Sequence[Recording], axes: Sequence[str], da
                      "regression_nrmse": rms["regression"] / ptp if ptp > 0 else None,
                      "ratio": rms["model"] / rms["regression"] if rms["regression"] > 0 else math.inf,
                      "choice_ratio": rms[best] / rms["regression"] if rms["regression"] > 0 else math.inf,
-                     "choice": best, "samples": {"calibration": int(np.sum(use & is_cal)),
+                     "choice": best, "calibration_folds": folds,
+                     "samples": {"calibration": int(np.sum(use & is_cal)),
                                                  "air_inside_the_cuts_motion": int(np.sum(use & ~is_cal)),
                                                  "standing": int(np.sum(use & standing))},
                      "note": _NOTES[best]}
