@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivesense.errors import ConfigError, IdentificationError, MissingChannelError
+from drivesense.identify.excitation import STRIBECK_SPEEDS, SLIDING_SPEED, best_period, unexcited_terms
 from drivesense.identify.kinematics import carried_first, check_kinematics, mass_floor, merge_bounds, offset_bound
 from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
 from drivesense.identify.physical_fit import (AxisProblem, Constraints, drive_sign, fit_bounded, held_out_error,
@@ -72,14 +73,10 @@ __all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "tr
 MIN_RATE_HZ = 25.0
 #: Terms kept whatever their held-out error (with the axis's own mass).
 _STRUCTURAL = ("offset",)
-_STRIBECK_SPEEDS = (0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3, 20e-3)
-_PERIODS = np.geomspace(3e-3, 60e-3, 240)
 #: Friction, masses and offsets from the air cuts alone, then the force constant (when both kinds are given).
 TWO_STAGE = True
 #: A delay of the drive channels behind the force is taken only if it cuts the base residual by this share [-].
 DELAY_GAIN = 0.05
-#: Speed above which an axis slides for the force constant's fit [m/s].
-_SLIDING_SPEED = 2e-3
 #: Presliding distances tried [m] (0: the window-mean sign of the velocity).
 _PRESLIDING = (0.0, 2e-6, 5e-6, 10e-6, 20e-6, 50e-6, 100e-6)
 #: Relaxation times of the friction held at standstill tried [s] (0: none).
@@ -233,7 +230,7 @@ def _fit_matrix(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, axis
     """Air cuts and calibration cuts together: two stages when both are there in numbers, else jointly."""
     air = ~data.is_cal
     if TWO_STAGE and air.sum() >= max(10 * len(names), 200) and data.is_cal.sum() >= 50:
-        sliding = data.is_cal & (np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * v_eps, _SLIDING_SPEED))
+        sliding = data.is_cal & (np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * v_eps, SLIDING_SPEED))
         return _two_stage(X, y, data, names, sliding if sliding.sum() >= 50 else data.is_cal)
     return solve_least_squares(np.column_stack([X, data.force]), y, [*names, "c"])
 
@@ -268,69 +265,11 @@ def _two_stage(X: np.ndarray, y: np.ndarray, data: _AxisData, names: list, slidi
     return LeastSquaresFit([*names, "c"], np.append(first.theta, c), cov, residual, float(residual @ residual))
 
 
-def _excitation(axis: str, others: Sequence[str], data: _AxisData, st: _Settings, fs: float) -> dict[str, str]:
-    """Candidate terms the traces do not excite, with the reason."""
-    arr = data.arrays
-    v = arr[f"{axis}_velocity"]
-    d = friction_direction(v, arr[f"{axis}_acceleration"], st.window_s, st.v_eps)
-    moving = np.abs(d) > 0.5
-    out = {}
-    for name, count in (("coulomb_pos", np.sum(d > 0.5)), ("coulomb_neg", np.sum(d < -0.5))):
-        if count < 10:
-            out[name] = f"not excited: {count} samples move in the {name[-3:]} direction (need 10)"
-    if moving.sum() < 10 or float(np.std(np.abs(v[moving]))) < 1e-3:
-        out["viscous"] = "not excited: the axis moves at (almost) one speed only"
-    if f"{axis}_position" in arr:
-        span = float(np.ptp(arr[f"{axis}_position"]))
-        if span < 5e-3:
-            out["position"] = f"not excited: the axis travels {span * 1e3:.2g} mm (need 5 mm)"
-    else:
-        out["position"] = f"no channel {axis}_position"
-    slow = moving & (np.abs(v) < 2 * _STRIBECK_SPEEDS[-1])
-    if slow.sum() < 20:
-        out["stribeck"] = f"not excited: {int(slow.sum())} moving samples below {2 * _STRIBECK_SPEEDS[-1] * 1e3:g} mm/s"
-    for b in others:
-        a_b = arr[f"{b}_acceleration"]
-        if float(np.max(np.abs(a_b), initial=0.0)) < 0.05:
-            out[f"inertia_{b}"] = f"not excited: axis {b} never accelerates above 0.05 m/s^2"
-    travelled = float(np.sum(np.abs(v[moving]))) / fs
-    if f"{axis}_position" not in arr or travelled < 0.05:
-        out["ripple"] = f"not excited: {travelled * 1e3:.3g} mm of travel (need 50 mm for a position-periodic term)"
-    return out
-
-
-def _best_period(axis: str, data: _AxisData, st: _Settings, residual: np.ndarray, given: float | None):
-    """Spatial period [m] of the strongest position-periodic residual, or (0, reason)."""
-    moving = np.abs(data.arrays[f"{axis}_velocity"]) > max(50.0 * st.v_eps, _SLIDING_SPEED)
-    if moving.sum() < 50:
-        return 0.0, f"not excited: {int(moving.sum())} samples slide (need 50 for a position-periodic term)"
-    s = data.arrays[f"{axis}_position"][moving]      # sliding samples: at standstill the held friction hides it
-    v = data.arrays[f"{axis}_velocity"][moving]
-    periods = np.array([given]) if given else _PERIODS
-    gains = np.empty(periods.size)
-    r = residual[moving] - residual[moving].mean()
-    base = float(r @ r)
-    for i, lam in enumerate(periods):
-        w = np.sinc(v * st.window_s / lam)
-        ph = 2 * math.pi * s / lam
-        X = np.column_stack([np.sin(ph) * w, np.cos(ph) * w])
-        coef, *_ = np.linalg.lstsq(X, r, rcond=None)
-        gains[i] = float(np.sum((X @ coef) ** 2)) / base
-    best = int(np.argmax(gains))
-    span = float(np.ptp(s))
-    if span < 2 * periods[best]:
-        return 0.0, f"not excited: {span * 1e3:.3g} mm of travel cover less than two periods of {periods[best] * 1e3:.3g} mm"
-    if not given and gains[best] < max(3.0 * float(np.median(gains)), 0.02):
-        return 0.0, (f"not determined: no position-periodic residual stands out (best {periods[best] * 1e3:.3g} mm "
-                     f"explains {gains[best] * 100:.2g} % of the residual)")
-    return float(periods[best]), ""
-
-
 def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: float, fs: float,
                    km: float | None, period: float | None, bounds: Mapping | None = None
                    ) -> tuple[ControllerAxis, dict, list]:
     st = _Settings(window_s=window_s, v_eps=_velocity_noise(data.arrays[f"{axis}_velocity"]), fs=fs)
-    dropped = _excitation(axis, others, data, st, fs)
+    dropped = unexcited_terms(axis, others, data.arrays, st.window_s, st.v_eps, fs)
     base = [n for n in ("offset", f"inertia_{axis}", "coulomb_pos", "coulomb_neg", "viscous") if n not in dropped]
     optional = [n for n in ("position", *(f"inertia_{b}" for b in others)) if n not in dropped]
     names = base + optional
@@ -345,7 +284,7 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     # Stribeck velocity: the best of a grid (same number of parameters)
     if "stribeck" not in dropped:
         rss = {}
-        for vs in _STRIBECK_SPEEDS:
+        for vs in STRIBECK_SPEEDS:
             st.v_s = vs
             rss[vs] = _fit_terms([*names, "stribeck"], axis, data, st, km).rss
         st.v_s = min(rss, key=rss.get)
@@ -353,14 +292,14 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     # position-periodic terms at the strongest spatial period of the residual
     if "ripple" not in dropped:
         fit = _fit_terms(names, axis, data, st, km)
-        st.period, why = _best_period(axis, data, st, fit.residual, period)
+        st.period, why = best_period(axis, data.arrays, st.window_s, st.v_eps, fit.residual, period)
         if st.period > 0:
             names += ["ripple1_sin", "ripple1_cos", "ripple2_sin", "ripple2_cos"]
         else:
             dropped["ripple"] = why
     keep = [*_STRUCTURAL, f"inertia_{axis}", *(n for n in ("coulomb_pos", "coulomb_neg") if n in names)]
     v = data.arrays[f"{axis}_velocity"]
-    sliding = data.is_cal & (np.abs(v) > max(50.0 * st.v_eps, _SLIDING_SPEED))
+    sliding = data.is_cal & (np.abs(v) > max(50.0 * st.v_eps, SLIDING_SPEED))
     lengths = np.diff([*data.starts, data.force.size])
     X = _columns(names, axis, data, st)
     segments = segment_ids(lengths, fs)
