@@ -81,7 +81,7 @@ def real_bench_files(folder: str | Path, calibration: str | None = None, air: st
     return {"calibration": cal, "air": air_path, "held_out": [p for p in cuts if p != cal]}
 
 
-def _train_hybrid(model, cal: Recording, held_out: list, n: int, read, regression) -> tuple[dict, list]:
+def _train_hybrid(model, cal: Recording, cal_file: str, held_out: list, n: int, read, regression) -> tuple[dict, list]:
     """The hybrid on the calibration cut (and the held-out cut nearest to it by name whose reference frame is the
     calibration cut's), small-set defaults."""
     from drivesense.learn import Hybrid
@@ -102,7 +102,7 @@ def _train_hybrid(model, cal: Recording, held_out: list, n: int, read, regressio
     est = Hybrid(config=TrainConfig(seed=0)).fit([cal, *extra], model_based=model)
     seconds = time.perf_counter() - started
     hist = est.model.history
-    return {"estimator": est, "train_files": [cal.name, *(p.name for p in extra_paths)], "train_seconds": seconds,
+    return {"estimator": est, "train_files": [cal_file, *(p.name for p in extra_paths)], "train_seconds": seconds,
             "epochs": hist.get("epochs"), "correction": hist.get("correction"), "validation": hist.get("validation"),
             "windows_per_epoch": est.model.config.windows_per_epoch}, extra
 
@@ -193,7 +193,8 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
         learned = {"skipped": "the hybrid corrects an estimate of x, y and z; identify nc left out "
                               + ", ".join(a for a in AXES if a not in methods["auto"].axes)}
     elif hybrid_cuts:
-        learned, extra = _train_hybrid(report.model, cal_rec, held_out, hybrid_cuts, read, methods["regression"])
+        learned, extra = _train_hybrid(report.model, cal_rec, files["calibration"].name, held_out, hybrid_cuts, read,
+                                       methods["regression"])
         methods["hybrid"] = learned.pop("estimator")
         methods["regression_same_cuts"] = Regression(axes=AXES).fit([cal_rec, *extra])
         held_out = [p for p in held_out if p.name not in learned["train_files"]]

@@ -28,7 +28,7 @@ from drivesense.identify.physical_fit import (RIDGE_GRID, SHRINK_GRID, AxisProbl
                                               covariance, held_out_error)
 from drivesense.machine.controller_model import ControllerTerm, term_unit
 
-__all__ = ["choose_terms", "physical_terms", "VIF_LIMIT", "active_bound_reason"]
+__all__ = ["choose_terms", "physical_terms", "term_table", "VIF_LIMIT", "active_bound_reason"]
 
 #: Variance inflation above which a term is numerically indistinguishable from the others.
 VIF_LIMIT = 1.0e4
@@ -181,7 +181,17 @@ def physical_terms(axis: str, problem: AxisProblem, fit: BoundedFit, cons: Const
 
 
 def term_table(terms: Sequence[ControllerTerm], air: Mapping[str, float], K: float) -> dict:
-    """Report rows: value, ci95, unit and the air-cut stage's value of each term."""
+    """Report rows: value, ci95, unit and the air-cut stage's value of each term.
+
+    Parameters
+    ----------
+    terms : sequence of ControllerTerm
+        The identified terms.
+    air : mapping of str to float
+        The air-cut stage's coefficient of each term [A per unit of the feature] (NaN without air cuts).
+    K : float
+        The force constant [N/A].
+    """
     return {t.name: {"value": t.value, "ci95": t.ci95, "unit": term_unit(t.name),
                      **({"air_cut_value": air[t.name] * K} if t.name in air and math.isfinite(air[t.name]) else {})}
             for t in terms}
