@@ -92,13 +92,14 @@ class ControllerIdentification:
     model : ControllerModel
         The identified model.
     axes : dict
-        Per axis: ``terms`` (name -> value, ci95, unit), ``K_m`` and its
-        ``K_m_ci95`` [N/A], ``K_m_source``, ``dropped`` (name -> reason),
+        Per axis: ``terms`` (name -> value, ci95, unit, air-cut value), ``K_m`` and its
+        ``K_m_ci95`` [N/A], ``K_m_source``, ``force_sign``, ``active_bounds`` (name -> why),
+        ``dropped`` (name -> reason), the held-out error, the chosen ridge and shrinkage,
         residual RMS on the air and calibration samples [A] and [N], sample counts.
     limits : list of str
         What the trace rate cannot resolve.
     warnings : list of str
-        Physically doubtful results (a negative mass, ...), axes left out.
+        Axes left out (with the reason).
     seconds : float
         Wall time of the identification [s].
     regression_check : dict

@@ -19,6 +19,7 @@ controller-rate model of any machine (``identify nc``, see
     period = 0.01         # m, period of the ripple terms (0: none)
     x_pre = 5e-06         # m, presliding distance (0: window-mean sign of v)
     hold_time = 3.0       # s, relaxation of the friction held at standstill (0: none)
+    force_sign = 1        # -1: the force reference reads the load against the drive
 
     [x.terms]             # F = K_m I - sum(value * feature); name = [value, 95 % half-width]
     offset = [12.0, 3.0]  # N
@@ -26,7 +27,14 @@ controller-rate model of any machine (``identify nc``, see
     ...
 
     [x.dropped]           # terms the data did not determine, and why
-    position = "not determined: ..."
+    position = "left out by held-out error: ..."
+
+    [regression]          # identify nc's regression (estimate --method regression), and per axis
+    features = [...]      # the estimate --per-axis auto takes in [choice]: "model", "sliding" or
+    [regression.weights]  # "regression"
+    x = [...]
+    [choice]
+    x = "model"
 
 The linear-motor kind::
 
