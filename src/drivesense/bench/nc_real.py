@@ -15,6 +15,7 @@ set: the files, the map and the kinematics come from the user.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import time
@@ -168,7 +169,7 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
         axis the NRMSE of regression, model and auto with the ratios, the pooled means and the targets.
     """
     from drivesense.estimate import ModelBased, Regression
-    from drivesense.identify.controller import identify_controller
+    from drivesense.identify.controller import as_air_cut, identify_controller
     from drivesense.io import read_trace
 
     if hybrid_cuts not in (0, 1, 2):
@@ -177,11 +178,11 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     if hybrid_cuts == 2 and len(files["held_out"]) < 2:
         raise ConfigError("--hybrid 2 trains on the calibration cut and one more: the folder needs two held-out cuts")
 
+    @functools.lru_cache(maxsize=None)      # a cut the hybrid trains on or checks is read once, not again
     def read(path: Path) -> Recording:
         return read_trace(path, columns=columns, bad_samples=bad_samples)
 
-    cal_rec, air_rec = read(files["calibration"]), read(files["air"])
-    air_rec = air_rec.select(*[c for c in air_rec.channels if not c.startswith("force_")])
+    cal_rec, air_rec = read(files["calibration"]), as_air_cut(read(files["air"]))
     started = time.perf_counter()
     report = identify_controller([air_rec, cal_rec], vertical=vertical, carries=carries)
     identify_seconds = time.perf_counter() - started

@@ -100,23 +100,20 @@ def identify_nc(
     columns: ColumnsOpt = None,
 ) -> None:
     """Identify force constants, masses, weight, friction and ripple from a calibration cut and air cuts."""
-    from drivesense.identify.controller import identify_controller
+    from drivesense.identify.controller import as_air_cut, identify_controller, is_calibration_cut
     from drivesense.io.axes_file import write_axes_file
 
     kinematics = parse_carries(carries) if carries else None
     read = trace_reader(fs, resample, assume_si, bad_samples, columns)
     recs = [read(p) for p in traces]
-    for p in air or []:
-        rec = read(p)
-        forces = [c for c in rec.channels if c.startswith("force_")]
-        recs.append(rec.select(*[c for c in rec.channels if c not in forces]) if forces else rec)
+    recs += [as_air_cut(read(p)) for p in air or []]
     traces = [*traces, *(air or [])]
     with show_warnings():
         report = identify_controller(recs, km=parse_axis_values(km, "--km", "N/A") if km else None,
                                      period=parse_axis_values(period, "--period", "m") if period else None,
                                      vertical=vertical, carries=kinematics)
     model = report.model
-    n_cal = sum(any(c.startswith("force_") for c in r.channels) for r in recs)
+    n_cal = sum(is_calibration_cut(r) for r in recs)
     write_axes_file(out, model, header=f"identified by 'drivesense identify nc' from {n_cal} calibration cut(s) and "
                                        f"{len(recs) - n_cal} air cut(s) at {model.rate_hz:g} Hz")
     axes = list(model.axes)

@@ -59,15 +59,16 @@ from drivesense.errors import ConfigError, IdentificationError, MissingChannelEr
 from drivesense.identify.excitation import STRIBECK_SPEEDS, SLIDING_SPEED, best_period, unexcited_terms
 from drivesense.identify.kinematics import carried_first, check_kinematics, mass_floor, merge_bounds, offset_bound
 from drivesense.identify.least_squares import LeastSquaresFit, residual_variance, solve_least_squares
-from drivesense.identify.physical_fit import (AxisProblem, Constraints, drive_sign, fit_bounded, held_out_error,
-                                             held_out_residuals, segment_ids)
+from drivesense.identify.physical_fit import (AxisProblem, Constraints, drive_sign, fit_bounded, held_out_residuals,
+                                             segment_ids)
 from drivesense.identify.term_choice import choose_terms, physical_terms, term_table
 from drivesense.identify.regression_check import compare_with_regression
 from drivesense.machine.controller_model import (ControllerAxis, ControllerModel, axis_direction, feature_column,
                                                  friction_direction)
 from drivesense.recording import Recording
 
-__all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "trace_axes"]
+__all__ = ["identify_controller", "ControllerIdentification", "MIN_RATE_HZ", "trace_axes", "is_calibration_cut",
+           "as_air_cut"]
 
 #: Lowest trace rate the identification accepts [Hz].
 MIN_RATE_HZ = 25.0
@@ -164,7 +165,7 @@ def _axis_data(traces: Sequence[Recording], axis: str, channels: Sequence[str], 
     parts: dict[str, list] = {c: [] for c in channels}
     force, is_cal = [], []
     for rec in traces:
-        has_force = _has_force(rec)
+        has_force = is_calibration_cut(rec)
         if has_force and f"force_{axis}" not in rec:
             continue        # a cut without this axis's force: its load on the axis is unknown
         for c in channels:
@@ -328,6 +329,9 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
     fit = fit_bounded(problem, cols, cons, ridge=ridge, shrink=shrink)
     K, K_ci, terms, active = physical_terms(axis, problem, fit, cons, km)
     held_residual = held_out_residuals(problem, cols, cons, ridge=ridge, shrink=shrink)
+    # the held-out error of the calibration and the air segments, from the same folds
+    cal_mse = _mean_square(held_residual[data.is_cal]) if len(problem.segments(True)) >= 2 else float("nan")
+    air_mse = _mean_square(held_residual[~data.is_cal]) if len(problem.segments(False)) >= 2 else float("nan")
     trace = np.repeat(np.arange(lengths.size), lengths)
     if np.unique(trace[data.is_cal]).size >= 2:
         # two calibration cuts or more: the check leaves out a whole cut (another program or material), which
@@ -336,10 +340,6 @@ def _identify_axis(axis: str, others: Sequence[str], data: _AxisData, window_s: 
                               use_for_c=use_for_c)
         held_residual = np.where(data.is_cal, held_out_residuals(per_cut, cols, cons, ridge=ridge, shrink=shrink),
                                  held_residual)
-    cal_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, cal_only=True) \
-        if len(problem.segments(True)) >= 2 else float("nan")
-    air_mse = held_out_error(problem, cols, cons, ridge=ridge, shrink=shrink, air_only=True) \
-        if len(problem.segments(False)) >= 2 else float("nan")
     model = ControllerAxis(K_m=K, terms=tuple(terms), v_eps=st.v_eps, K_m_ci95=K_ci, v_s=st.v_s, period=st.period,
                            x_pre=st.x_pre, hold_time=st.hold_time, dropped=dict(dropped), force_sign=int(force_sign))
     residual = problem.y - problem.X[:, cols] @ fit.theta - fit.c * problem.force
@@ -373,6 +373,12 @@ def _calibration_sse(problem: AxisProblem, fit) -> float:
     r = problem.y - problem.X[:, fit.cols] @ fit.theta - fit.c * problem.force
     rows = problem.is_cal if problem.use_for_c is None else problem.is_cal & problem.use_for_c
     return float(np.sum(r[rows] ** 2))
+
+
+def _mean_square(x: np.ndarray) -> float:
+    """Mean square of the finite samples (NaN: where no segment could be left out), NaN if there are none."""
+    x = x[np.isfinite(x)]
+    return float(np.mean(x ** 2)) if x.size else float("nan")
 
 
 def _rms(x: np.ndarray, scale: float = 1.0) -> float | None:
@@ -422,8 +428,26 @@ def _limits(fs: float, window_s: float, axes_models: Mapping[str, ControllerAxis
     return out
 
 
-def _has_force(rec: Recording) -> bool:
+def is_calibration_cut(rec: Recording) -> bool:
+    """True for a trace with a force reference (``force_*``): a calibration cut; False: an air cut.
+
+    Parameters
+    ----------
+    rec : Recording
+        A trace.
+    """
     return any(c.startswith("force_") for c in rec.channels)
+
+
+def as_air_cut(rec: Recording) -> Recording:
+    """An air cut whose dynamometer was logging anyway: the trace without its ``force_*`` channels.
+
+    Parameters
+    ----------
+    rec : Recording
+        A trace of the program run without material.
+    """
+    return rec.select(*[c for c in rec.channels if not c.startswith("force_")]) if is_calibration_cut(rec) else rec
 
 
 def _base_scorer(traces, axes, channels, km, T: float, fs: float):
@@ -543,7 +567,7 @@ def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> Contr
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value != 0):
             raise ConfigError(f"--km {a}={value!r}: the force constant must be a nonzero number [N/A]")
     check_kinematics(axes, vertical, carries)
-    has_cal = any(_has_force(rec) for rec in traces)
+    has_cal = any(is_calibration_cut(rec) for rec in traces)
     uncalibrated = [a for a in axes if a not in km and not any(f"force_{a}" in rec for rec in traces)]
     if uncalibrated:
         raise IdentificationError(
@@ -579,7 +603,7 @@ def _identify(traces, km, window_s, delay_s, period, vertical, carries) -> Contr
     errors = {a: r.pop("_held_out_force_error") for a, r in reports.items()}
     check = compare_with_regression(traces, axes, datas, errors, fs, left_out) if has_cal else None
     # the traces' own declared delay (meta nc_delay_s) is added to the latency by the estimator: keep the rest
-    declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if _has_force(rec)), default=0.0)
+    declared = max((float(rec.meta.get("nc_delay_s", 0.0) or 0.0) for rec in traces if is_calibration_cut(rec)), default=0.0)
     model = ControllerModel(axes=models, window_s=float(T), delay_s=max(float(d / fs) - declared, 0.0),
                             rate_hz=float(fs), regression=check.regression if check else None,
                             choice=check.choice if check else {})

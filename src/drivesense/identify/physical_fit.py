@@ -296,7 +296,7 @@ def fit_bounded(problem: AxisProblem, cols: list, cons: Constraints, *, ridge: f
 
 
 def held_out_error(problem: AxisProblem, cols: list, cons: Constraints, *, ridge: float = 1e-6,
-                   shrink: float = 1e6, cal_only: bool = False, air_only: bool = False) -> float:
+                   shrink: float = 1e6) -> float:
     """Mean squared current residual [A^2] on left-out segments, leaving out one segment at a time.
 
     Parameters
@@ -311,14 +311,9 @@ def held_out_error(problem: AxisProblem, cols: list, cons: Constraints, *, ridge
         As :func:`fit_bounded` [-].
     shrink : float
         As :func:`fit_bounded` [-].
-    cal_only : bool
-        Score only the calibration segments (their force error is ``|K_m|`` times this residual).
-    air_only : bool
-        Score only the air segments.
     """
     sse, n = 0.0, 0
-    segs = problem.segments(True) if cal_only else problem.segments(False) if air_only else problem.segments()
-    for g, ts, c in _folds(problem, cols, cons, ridge, shrink, segs):
+    for g, ts, c in _folds(problem, cols, cons, ridge, shrink, problem.segments()):
         held = problem.grams[g]
         idx = [*cols, problem.X.shape[1]]
         z = np.append(ts, c)

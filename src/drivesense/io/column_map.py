@@ -32,6 +32,7 @@ Shipped maps (:func:`shipped_maps`) can be named instead of a path
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Mapping
@@ -116,11 +117,14 @@ class ColumnMap:
             One cell of the file's header.
         """
         cell = header_cell.strip()
-        by_source = {c.source: c for c in self.columns}
-        if cell in by_source:
-            return by_source[cell]
+        if cell in self._by_source:
+            return self._by_source[cell]
         m = _HEADER_RE.match(cell)
-        return by_source.get(m.group(1).strip()) if m else None
+        return self._by_source.get(m.group(1).strip()) if m else None
+
+    @functools.cached_property
+    def _by_source(self) -> dict:
+        return {c.source: c for c in self.columns}
 
     def check_header(self, header: list[str], file_name: str) -> None:
         """ConfigError naming the map, the file and the column when a required column is missing.
