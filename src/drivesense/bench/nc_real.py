@@ -170,7 +170,7 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     """
     from drivesense.estimate import ModelBased, Regression
     from drivesense.identify.controller import as_air_cut, identify_controller
-    from drivesense.io import read_trace
+    from drivesense.io import read_trace, resolve_column_map
 
     if hybrid_cuts not in (0, 1, 2):
         raise ConfigError(f"--hybrid {hybrid_cuts}: train the hybrid on 1 or 2 cuts (0: not at all)")
@@ -178,9 +178,11 @@ def run_real_nc_bench(folder: str | Path, *, columns: str | None = None, calibra
     if hybrid_cuts == 2 and len(files["held_out"]) < 2:
         raise ConfigError("--hybrid 2 trains on the calibration cut and one more: the folder needs two held-out cuts")
 
+    column_map = resolve_column_map(columns) if columns is not None else None     # read once, checked first
+
     @functools.lru_cache(maxsize=None)      # a cut the hybrid trains on or checks is read once, not again
     def read(path: Path) -> Recording:
-        return read_trace(path, columns=columns, bad_samples=bad_samples)
+        return read_trace(path, columns=column_map, bad_samples=bad_samples)
 
     cal_rec, air_rec = read(files["calibration"]), as_air_cut(read(files["air"]))
     started = time.perf_counter()
