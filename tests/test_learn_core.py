@@ -170,7 +170,8 @@ def test_kernel_matches_pytorch_at_widths_off_its_four_input_sweep():
     state.update({f"head.{k}": v for k, v in head.state_dict().items()})
     state["skip.weight"] = conv.weight
     w = LSTMWeights.from_state_dict(state, 2)
-    assert w.packed.shape == (2, 16, 28)                        # 7 + 7 rows (the second layer) padded to 16
+    assert w.packed_ih.shape == (2, 8, 28)                      # 5 inputs, then 7 cells, padded to 8 rows
+    assert w.packed_hh.shape == (2, 8, 28)
     np.testing.assert_allclose(run_lstm(w, LSTMState(w), x), ref, atol=2e-5)
     with pytest.raises(ValueError, match="5 inputs per row"):
         run_lstm(w, LSTMState(w), x[:, :4])
