@@ -12,7 +12,7 @@ import shutil
 
 import pytest
 
-from drivesense.serve.broker import LocalBroker, free_port
+from drivesense.monitor.broker import LocalBroker, free_port
 
 __all__ = ["Mosquitto", "free_port", "require_binary", "run_until_cuts"]
 
@@ -30,7 +30,7 @@ def require_binary(name: str, *candidates: str) -> str:
 
 
 class Mosquitto(LocalBroker):
-    """:class:`drivesense.serve.broker.LocalBroker`, skipping the test when mosquitto is missing (failing with
+    """:class:`drivesense.monitor.broker.LocalBroker`, skipping the test when mosquitto is missing (failing with
     CI=true)."""
 
     def __init__(self) -> None:
@@ -39,7 +39,7 @@ class Mosquitto(LocalBroker):
 
 
 def run_until_cuts(service, spec, cuts: int, timeout: float = 120.0) -> None:
-    """Run a :class:`~drivesense.serve.service.MonitorService` until its simulated machine ``spec`` has played
+    """Run a :class:`~drivesense.monitor.service.MonitorService` until its simulated machine ``spec`` has played
     ``cuts`` cuts (as fast as it goes with ``speed=0``), then stop it; the machine keeps its buffers."""
 
     async def main():

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from drivesense.serve.outputs import REALARM_S, AlarmPublisher, EventLog
+from drivesense.monitor.outputs import REALARM_S, AlarmPublisher, EventLog
 
 pytest.importorskip("paho.mqtt.client") if os.environ.get("CI") != "true" else None
 

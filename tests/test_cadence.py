@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.monitor.cadence import AdaptiveCadence, CadenceSettings, propose_interval
+from drivesense.condition.cadence import AdaptiveCadence, CadenceSettings, propose_interval
 from drivesense.sim.tool_life import simulate_tool_life, table1_experiments
 
 BASE = 1.0                       # m, the fixed cadence's interval

@@ -89,8 +89,8 @@ class LiveService:
     """The demo service and its HTTP server in a background thread with its own loop."""
 
     def __init__(self, *, websocket: bool = True) -> None:
-        from drivesense.serve.demo import demo_machine
-        from drivesense.serve.service import MonitorService
+        from drivesense.monitor.demo import demo_machine
+        from drivesense.monitor.service import MonitorService
 
         self.spec = demo_machine(speed=1.0, cut_s=3.0)        # fits the estimator (cached) before the clock runs
         self.spec.source.simulate_cut(0)                       # warm the simulator (imports, compiled kernels)
@@ -114,7 +114,7 @@ class LiveService:
         self.thread = threading.Thread(target=self._main, name="drivesense-live", daemon=True)
 
     def _main(self) -> None:
-        from drivesense.serve.web import serve_http
+        from drivesense.monitor.web import serve_http
 
         async def main():
             self.loop = asyncio.get_running_loop()
@@ -135,7 +135,7 @@ class LiveService:
         """uvicorn as it runs where no WebSocket library is installed (``ws="none"``: /ws answers 404)."""
         import uvicorn
 
-        from drivesense.serve.web import create_app
+        from drivesense.monitor.web import create_app
 
         server = uvicorn.Server(uvicorn.Config(create_app(self.service), host="127.0.0.1", port=self.port,
                                                ws="none", log_level="warning", lifespan="off"))

@@ -68,7 +68,9 @@ def test_teach_then_detect_a_missing_tool(work):
                  work / "idle0.csv", "--idle", work / "idle1.csv", "--out", work / "limits.json")
     assert res.exit_code == 0, res.output
     limits = json.loads((work / "limits.json").read_text())
-    assert limits["align"] == "path" and limits["runs"] == 2 and limits["force_limit_n"] > 0
+    # the simulated runs carry the NC's block numbers: bins per block, counted along the path within each
+    assert limits["align"] == "block" and limits["within"] == "path" and limits["runs"] == 2
+    assert limits["force_limit_n"] > 0 and [g["block"] for g in limits["segments"]] == [20.0]
     res = _detect(work, "missing.csv", "--limits", work / "limits.json", "--json", work / "missing.json")
     assert res.exit_code == 0, res.output
     kinds = {e["kind"] for e in json.loads((work / "missing.json").read_text())["events"]}

@@ -1,7 +1,7 @@
 """``drivesense detect`` as a first-time user meets it: a breakage in a CSV trace that names no tool, a 50 Hz
 trace, a negative force limit, the output it prints, and the plot it draws.
 
-The tooth count is read from the force when nobody gives it (:mod:`drivesense.monitor.teeth`): here on
+The tooth count is read from the force when nobody gives it (:mod:`drivesense.events.teeth`): here on
 closed-form tooth pulses (known count, runout, spindle speed, a spindle ramp), on simulated cuts of the
 ball-screw stage through the vibration estimator (2-6 teeth, 1000-10 000 min^-1, runout), and on traces
 where it must refuse (no cut, noise, a line between the orders, one pulse per revolution, too short, no
@@ -24,9 +24,9 @@ from drivesense.errors import ConfigError, SignalTooShortError
 from drivesense.estimate.registry import make_from_files
 from drivesense.io import write_csv
 from drivesense.machine.milling import EndMill
-from drivesense.monitor.chatter import ChatterDetector
-from drivesense.monitor.pipeline import detect_in_trace, detector_inputs, run_detectors, tool_teeth
-from drivesense.monitor.teeth import TEETH_SOURCES, infer_teeth, resolve_teeth
+from drivesense.events.chatter import ChatterDetector
+from drivesense.events.pipeline import detect_in_trace, detector_inputs, run_detectors, tool_teeth
+from drivesense.events.teeth import TEETH_SOURCES, infer_teeth, resolve_teeth
 from drivesense.recording import Recording
 from drivesense.sim.process_events import ProcessEvent, simulate_event_cut
 from drivesense.sim.scenarios import CutCondition, ScenarioSettings, simulate_idle
@@ -344,8 +344,8 @@ def test_the_event_label_stands_beside_its_line():
     import matplotlib
 
     matplotlib.use("Agg")
-    from drivesense.monitor.detector import Event
-    from drivesense.monitor.pipeline import DetectionReport
+    from drivesense.events.detector import Event
+    from drivesense.events.pipeline import DetectionReport
     from drivesense.plot import plot_events
 
     rec = _milling(2, 3000.0, seconds=1.0)

@@ -1,4 +1,4 @@
-"""Process-event detectors (drivesense.monitor: breakage, chatter, overload, teach-in) on closed-form signals.
+"""Process-event detectors (drivesense.events: breakage, chatter, overload, teach-in) on closed-form signals.
 
 Every force here is written down directly -- half-sine tooth pulses at a
 constant spindle speed, a tone, a step, a ramp -- at 10 kHz, so the expected
@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError, SignalTooShortError
-from drivesense.monitor.breakage import BreakageDetector
-from drivesense.monitor.chatter import ChatterDetector
-from drivesense.monitor.detector import EVENT_KINDS, Event, events_to_json
-from drivesense.monitor.overload import OverloadDetector
-from drivesense.monitor.pipeline import default_detectors, run_detectors
-from drivesense.monitor.teach import TeachInDetector, TeachLimits, teach
+from drivesense.events.breakage import BreakageDetector
+from drivesense.events.chatter import ChatterDetector
+from drivesense.events.detector import EVENT_KINDS, Event, events_to_json
+from drivesense.events.overload import OverloadDetector
+from drivesense.events.pipeline import default_detectors, run_detectors
+from drivesense.events.teach import TeachInDetector, TeachLimits, teach
 from drivesense.recording import Recording
 
 FS = 10_000.0

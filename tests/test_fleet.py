@@ -51,7 +51,7 @@ def demo(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def cuts():
     """Four simulated 4 s cuts of the demo axis (10 kHz, with the true force_x); the second has a breakage."""
-    from drivesense.serve.sources import SimulatedSource
+    from drivesense.monitor.sources import SimulatedSource
 
     src = SimulatedSource("m", seed=11, cut_s=4.0)
     recs = [src.simulate_cut(k) for k in range(4)]

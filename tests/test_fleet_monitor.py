@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError
-from drivesense.serve.fleet import FleetWorker, MachineClaim, Membership, owner_of
-from drivesense.serve.mqtt import MQTTSource
-from drivesense.serve.outputs import EventLog
-from drivesense.serve.wire import encode_chunk
+from drivesense.monitor.fleet import FleetWorker, MachineClaim, Membership, owner_of
+from drivesense.monitor.mqtt import MQTTSource
+from drivesense.monitor.outputs import EventLog
+from drivesense.monitor.wire import encode_chunk
 
 pytest.importorskip("paho.mqtt.client") if os.environ.get("CI") != "true" else None
 
@@ -136,15 +136,15 @@ def test_workers_see_each_other_and_a_name_in_use_is_refused(mosquitto):
 
 
 def test_fleet_worker_refuses_what_it_cannot_share(tmp_path):
-    from drivesense.serve import MachineSpec, MonitorService
-    from drivesense.serve.sources import SimulatedSource
+    from drivesense.monitor import MachineSpec, MonitorService
+    from drivesense.monitor.sources import SimulatedSource
 
     with pytest.raises(ConfigError, match="--worker"):
         FleetWorker("w/1", tmp_path)
     (tmp_path / "file").write_text("")
     with pytest.raises(ConfigError, match="must be a folder"):
         FleetWorker("w1", tmp_path / "file")
-    from drivesense.serve.demo import demo_machine
+    from drivesense.monitor.demo import demo_machine
 
     spec = demo_machine(speed=0.0)
     assert isinstance(spec.source, SimulatedSource)
@@ -175,11 +175,11 @@ def test_a_machine_taken_over_mid_stream_raises_the_uninterrupted_runs_events():
     """The re-priming rule itself, without a broker: a fresh monitor replays from HOLD_S before the last
     worker's mark (or from where a detector's memory begins, the breakage detector's cut start), quietly up
     to the mark; from there on its events are the uninterrupted run's, id for id."""
-    from drivesense.serve.demo import demo_machine
-    from drivesense.serve.fleet import HOLD_S
-    from drivesense.serve.machine import MachineMonitor
-    from drivesense.serve.sources import SimulatedSource
-    from drivesense.serve.wire import Chunk
+    from drivesense.monitor.demo import demo_machine
+    from drivesense.monitor.fleet import HOLD_S
+    from drivesense.monitor.machine import MachineMonitor
+    from drivesense.monitor.sources import SimulatedSource
+    from drivesense.monitor.wire import Chunk
 
     axes = demo_machine(speed=0.0).monitor.axes
     sim = SimulatedSource("m1", seed=11, cut_s=4.0, event_share=1.0)     # cuts with breakage, chipping, collision
@@ -208,7 +208,7 @@ def test_the_breakage_detector_replayed_from_before_a_cut_gives_the_same_statist
     the stream put the revolution boundaries on a knife's edge of rounding, so a stream started later (a worker
     that took the machine over) drifted from the uninterrupted one.  Counted from each cut's start, a stream
     started anywhere before the cut gives the same statistic, sample for sample."""
-    from drivesense.monitor.breakage import BreakageDetector
+    from drivesense.events.breakage import BreakageDetector
 
     fs, w = 1e4, 2 * np.pi * 100.0
     t = np.arange(int(22 * fs)) / fs
@@ -233,8 +233,8 @@ def test_the_breakage_detector_replayed_from_before_a_cut_gives_the_same_statist
 
 
 def test_a_claim_that_cannot_read_the_machines_log_is_shown_and_retried(tmp_path, monkeypatch):
-    import drivesense.serve.fleet as fleet
-    from drivesense.serve import MachineSpec
+    import drivesense.monitor.fleet as fleet
+    from drivesense.monitor import MachineSpec
 
     monkeypatch.setattr(fleet, "CLAIM_RETRY_S", 0.05)
     (tmp_path / "m1.jsonl").write_text("not json\n")               # a log that is no drivesense event log

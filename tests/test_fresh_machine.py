@@ -96,7 +96,7 @@ def test_a_dashboard_port_in_use_stops_the_monitor_before_any_work():
 
 def test_an_http_server_failing_while_running_reaches_the_command(monkeypatch):
     """A failure of the dashboard server after the start ends the command with its message, not exit 0."""
-    import drivesense.serve.web as web
+    import drivesense.monitor.web as web
 
     async def broken(service, host, port, stop, *, sock=None):
         stop.set()
@@ -126,7 +126,7 @@ def test_a_config_with_a_negative_source_speed_is_refused(tmp_path):
 
 
 def test_machine_ids_that_would_break_routes_and_event_ids_are_refused(tmp_path):
-    from drivesense.serve.service import check_machine_id, machine_id_from
+    from drivesense.monitor.service import check_machine_id, machine_id_from
 
     for bad in ("a/b", "", " m1", "m1?", "m#1", "m+1", "é", "-m", "x" * 65):
         with pytest.raises(ConfigError, match="letters, digits"):
@@ -144,9 +144,9 @@ def test_every_route_works_for_an_accepted_machine_id():
     pytest.importorskip("fastapi")
     from fastapi.testclient import TestClient
 
-    from drivesense.serve.demo import demo_machine
-    from drivesense.serve.service import MonitorService
-    from drivesense.serve.web import create_app
+    from drivesense.monitor.demo import demo_machine
+    from drivesense.monitor.service import MonitorService
+    from drivesense.monitor.web import create_app
 
     mid = "Mill-7.a_b"
     spec = demo_machine(mid, speed=0, cut_s=3.0)
@@ -231,7 +231,7 @@ def test_user_text_is_never_read_as_markup_or_emoji(feed_files):
 
 
 def test_acknowledging_an_alarm_twice_keeps_the_first_acknowledgement(tmp_path):
-    from drivesense.serve.outputs import EventLog
+    from drivesense.monitor.outputs import EventLog
 
     log = EventLog(tmp_path / "events.jsonl")
     log.append({"id": "m1/breakage/x/1", "machine": "m1", "kind": "breakage", "axis": "x", "time_s": 1.0,

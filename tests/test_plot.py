@@ -131,7 +131,7 @@ def _trace_wavelength():
 
 
 def _events():
-    from drivesense.monitor import OverloadDetector, run_detectors
+    from drivesense.events import OverloadDetector, run_detectors
 
     fs = 10_000.0
     t = np.arange(int(fs)) / fs

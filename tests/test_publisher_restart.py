@@ -12,16 +12,16 @@ import asyncio
 import numpy as np
 import pytest
 
-from drivesense.serve.fleet import MachineClaim
-from drivesense.serve.mqtt import MQTTSource
-from drivesense.serve.wire import Chunk, StreamCursor, WireError, decode_chunk, encode_chunk
+from drivesense.monitor.fleet import MachineClaim
+from drivesense.monitor.mqtt import MQTTSource
+from drivesense.monitor.wire import Chunk, StreamCursor, WireError, decode_chunk, encode_chunk
 
 
 @pytest.fixture(scope="module")
 def demo():
     """The demo machine's axes and a 4 s cut whose flute breaks at about 2.16 s, as drive-signal chunks."""
-    from drivesense.serve.demo import demo_machine
-    from drivesense.serve.sources import SimulatedSource
+    from drivesense.monitor.demo import demo_machine
+    from drivesense.monitor.sources import SimulatedSource
 
     rec = SimulatedSource("m", cut_s=4.0).simulate_cut(1)
     assert [e["kind"] for e in rec.meta["truth"]["events"]] == ["breakage"]
@@ -63,7 +63,7 @@ def test_the_cursor_tells_next_old_and_restart():
 
 
 def test_a_restarted_publisher_is_monitored_afresh_with_its_own_event_ids(demo):
-    from drivesense.serve.machine import MachineMonitor
+    from drivesense.monitor.machine import MachineMonitor
 
     axes, signal, fs = demo
     first, second = _run(signal, fs, "a"), _run(signal, fs, "b")    # the second run's clock starts at 0 again
@@ -83,7 +83,7 @@ def test_a_restarted_publisher_is_monitored_afresh_with_its_own_event_ids(demo):
 
 
 def test_without_sessions_seq_0_again_is_refused_and_the_message_says_why(demo):
-    from drivesense.serve.machine import MachineMonitor
+    from drivesense.monitor.machine import MachineMonitor
 
     axes, signal, fs = demo
     chunks = _run(signal, fs, None)

@@ -9,7 +9,7 @@ import pytest
 
 from drivesense.errors import ConfigError, SignalTooShortError
 from drivesense.machine.milling import CuttingCoefficients, EndMill, MillingCut, milling_forces
-from drivesense.monitor.runout import estimate_runout
+from drivesense.condition.runout import estimate_runout
 from drivesense.recording import Recording
 
 FS = 20000.0

@@ -14,7 +14,7 @@ from drivesense.cli import app
 from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.identify.coefficients import CutTable, fit_tangential_coefficients
 from drivesense.machine.cutting_power import CutConditions, cutting_power
-from drivesense.monitor.wear import WearTracker, WearTrackerSettings, percent_power_increase, track_wear
+from drivesense.condition.wear import WearTracker, WearTrackerSettings, percent_power_increase, track_wear
 from drivesense.sim.tool_life import simulate_tool_life, table1_experiments
 
 runner = CliRunner()

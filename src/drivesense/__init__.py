@@ -18,7 +18,7 @@ from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.presets import table1_axis, table1_stage
 from drivesense.recording import Recording
 from drivesense.score import Score, score_estimate
-from drivesense import monitor
+from drivesense import condition, events
 from drivesense.machine.cutting_power import (CutConditions, average_tangential_force, chip_thickness_from_angles,
                                               cutting_power, engagement_angle, force_per_depth)
 from drivesense.identify.coefficients import (CutTable, SeeSawWarning, TangentialFit, average_power,
@@ -26,8 +26,8 @@ from drivesense.identify.coefficients import (CutTable, SeeSawWarning, Tangentia
 from drivesense.identify.feed_power import FeedCuts, FeedPowerModel, fit_feed_power, per_speed_fits, read_feed_cuts
 from drivesense.identify.sensor import (SensorCalibration, calibrate_sensor, check_linearity, deconvolution_residual,
                                         ratio_spectrum)
-from drivesense.monitor import (RunoutEstimate, WearReport, WearTracker, WearTrackerSettings, estimate_runout,
-                                percent_power_increase, track_wear)
+from drivesense.condition import (RunoutEstimate, WearReport, WearTracker, WearTrackerSettings, estimate_runout,
+                                  percent_power_increase, track_wear)
 from drivesense.sim.tool_life import WearExperiment, simulate_tool_life, table1_experiments
 from drivesense.sim.electret import ElectretSensor, simulate_shaker_pair
 from drivesense.estimate.model_based import ModelBased
@@ -48,7 +48,7 @@ __all__ = [
     "FrictionMap", "build_friction_map", "Score", "score_estimate", "__version__",
 ]
 __all__ += [
-    "monitor", "CutConditions", "engagement_angle", "chip_thickness_from_angles", "cutting_power",
+    "events", "condition", "CutConditions", "engagement_angle", "chip_thickness_from_angles", "cutting_power",
     "average_tangential_force", "force_per_depth", "TangentialFit", "CutTable", "SeeSawWarning",
     "fit_tangential_coefficients", "calibrate_from_power", "average_power", "read_cut_table",
     "FeedCuts", "FeedPowerModel", "read_feed_cuts", "fit_feed_power", "per_speed_fits",

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import ConfigError, TimebaseError
+from .nc_context import CONTEXT_CHANNELS
 
 __all__ = ["validate_timebase", "check_timebase", "check_fs", "format_time", "resample_uniform"]
 
@@ -79,6 +80,10 @@ def resample_uniform(time: ArrayLike, channels: dict, fs: float, *, name: str = 
                      rows: ArrayLike | None = None, row_label: str = "sample") -> tuple[float, dict, str]:
     """Resample irregularly stamped channels onto a uniform grid, explicitly (linear interpolation).
 
+    The NC's context channels (:data:`~drivesense.nc_context.CONTEXT_CHANNELS`:
+    a block number, a tool, an override) are held from the stamp at or before
+    each grid time instead: block 10.5 means nothing.
+
     The grid starts at the first stamp and holds every ``t0 + k / fs`` up to
     the last stamp.  No anti-alias filter is applied: choose `fs` at or
     above the rate the data were logged at.
@@ -123,11 +128,15 @@ def resample_uniform(time: ArrayLike, channels: dict, fs: float, *, name: str = 
         raise TimebaseError(f"{name}: the stamps span {t[-1] - t[0]:.6g} s, less than two samples at "
                             f"--resample {fs:g} Hz")
     grid = t[0] + np.arange(n) / fs
-    out = {k: np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in channels.items()}
+    last = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)     # the stamp at or before
+    out = {k: np.asarray(v, dtype=np.float64)[last] if k in CONTEXT_CHANNELS
+           else np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in channels.items()}
     d = np.diff(t)
+    held = sorted(k for k in channels if k in CONTEXT_CHANNELS)
     note = (f"resampled explicitly (--resample) from {t.size} stamps (median step {float(np.median(d)):.6g} s, "
             f"steps {float(d.min()):.6g}..{float(d.max()):.6g} s) to a uniform grid at fs={fs:.12g} Hz, "
-            f"{n} samples, by linear interpolation")
+            f"{n} samples, by linear interpolation" + (f"; the NC's context held from the stamp before "
+                                                        f"({', '.join(held)})" if held else ""))
     return float(t[0]), out, note
 
 

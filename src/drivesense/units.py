@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .errors import InvalidSignalError, UnitError
+from .nc_context import CONTEXT_CHANNELS
 
 __all__ = [
     "LENGTH",
@@ -135,7 +136,7 @@ _TABLE: dict[str, list[tuple[str, float]]] = {
     POWER: [("W", 1.0), ("kW", 1e3), ("hp", _HP), ("HP", _HP)],
     TORQUE: [("N*m", 1.0), ("N m", 1.0), ("Nm", 1.0), ("N.m", 1.0), ("N·m", 1.0)],
     VOLTAGE: [("V", 1.0), ("mV", 1e-3)],
-    DIMENSIONLESS: [("1", 1.0), ("", 1.0), ("-", 1.0)],
+    DIMENSIONLESS: [("1", 1.0), ("", 1.0), ("-", 1.0), ("%", 1e-2)],
 }
 
 _UNITS: dict[str, UnitInfo] = {}
@@ -159,6 +160,7 @@ _FIXED_CHANNELS: dict[str, str] = {
     "spindle_speed": ANGULAR_SPEED,
     "spindle_current": CURRENT,
     "spindle_power": POWER,
+    **{name: DIMENSIONLESS for name in CONTEXT_CHANNELS},       # the NC's context (drivesense.nc_context)
 }
 _AXIS_RE = re.compile(r"^([xyz])_(.+)$")
 _FORCE_RE = re.compile(r"^force_[xyz]$")

@@ -180,8 +180,8 @@ def score_programs(rows: list[dict]) -> dict:
 def _detector_cost(program: Case) -> dict:
     """Streaming cost of the detectors against the estimator's, on one run, in the same process."""
     from drivesense.bench.events_cases import bench_estimator
-    from drivesense.monitor.pipeline import default_detectors, detector_inputs
-    from drivesense.monitor.teach import TeachInDetector, teach
+    from drivesense.events.pipeline import default_detectors, detector_inputs, estimate_limits
+    from drivesense.events.teach import TeachInDetector, teach
     from drivesense.sim.process_events import simulate_event_cut
 
     settings = program.settings()
@@ -200,7 +200,8 @@ def _detector_cost(program: Case) -> dict:
         for a in range(0, trace.n_samples, chunk):
             stream.push_arrays(*[x[a:a + chunk] for x in arrays])
         best_est = min(best_est, time.perf_counter() - t)
-        dets = default_detectors("x", teeth=program.teeth, force_limit_n=1e4) + [TeachInDetector(limits)]
+        dets = default_detectors("x", teeth=program.teeth, force_limit_n=1e4, **estimate_limits(est)) + \
+            [TeachInDetector(limits)]
         streams = [d.stream(trace.fs) for d in dets]
         data = {c: forces[c] for c in forces.channels}
         t = time.perf_counter()

@@ -4,7 +4,7 @@ Every case is a cut of the first paper's ball-screw stage (X feeding) with a
 tool drawn over 1-4 teeth, 1000-12 000 min^-1, three radial depths, up and
 down milling, 0-5 um runout; the force is estimated by the ``vibration``
 method (friction map from idle runs of the same feed) and handed to the
-detectors (:mod:`drivesense.monitor.pipeline`).  A case returns what the
+detectors (:mod:`drivesense.events.pipeline`).  A case returns what the
 detectors raised next to the truth; :mod:`drivesense.bench.events` scores them.
 """
 
@@ -22,12 +22,14 @@ from drivesense.machine.milling import CuttingCoefficients, EndMill, engagement_
 from drivesense.machine.presets import table1_axis
 from drivesense.machine.stability import critical_depth
 from drivesense.machine.tool_dynamics import ToolDynamics
-from drivesense.monitor.pipeline import default_detectors, detector_inputs, run_detectors
-from drivesense.monitor.teach import TeachInDetector, teach
+from drivesense.events.pipeline import default_detectors, detector_inputs, estimate_limits, run_detectors
+from drivesense.events.teach import TeachInDetector, teach
+from drivesense.nc_context import CONTEXT_CHANNELS
 from drivesense.sim.process_events import ProcessEvent, simulate_event_cut
 from drivesense.sim.scenarios import CutCondition, ScenarioSettings, simulate_idle
 
-__all__ = ["Case", "plan_event_cases", "plan_programs", "run_case", "run_program", "bench_estimator", "DIAMETER"]
+__all__ = ["Case", "plan_event_cases", "plan_programs", "run_case", "run_program", "bench_estimator", "DIAMETER",
+           "CONTEXT_VARIANTS"]
 
 #: The scenario tool's diameter [m].
 DIAMETER = 6e-3
@@ -240,7 +242,7 @@ def _detect(case: Case, rec, limit_n: float, limits=None):
     est = bench_estimator(round(case.feed_speed, 9), case.duration)
     forces = est.estimate(rec)
     inputs = detector_inputs(rec, forces)
-    detectors = default_detectors("x", teeth=case.teeth, force_limit_n=limit_n, band_hz=est.signal.lpf_hz)
+    detectors = default_detectors("x", teeth=case.teeth, force_limit_n=limit_n, **estimate_limits(est))
     if limits is not None:
         detectors.append(TeachInDetector(limits))
     report = run_detectors(inputs, detectors, check=False)
@@ -295,8 +297,21 @@ def run_case(case: Case) -> dict:
     return out
 
 
+#: What the event-free runs are monitored with: no NC context (the drive signals alone), the controller's
+#: context without an in-cut flag (tool, program, block, overrides, execution state), and with it.
+CONTEXT_VARIANTS = {"none": (), "nc": tuple(c for c in CONTEXT_CHANNELS if c != "in_cut"),
+                    "nc_in_cut": CONTEXT_CHANNELS}
+
+
+def _with_context(inputs, variant: str):
+    """The detector inputs with only the context channels of ``variant`` (see :data:`CONTEXT_VARIANTS`)."""
+    keep = CONTEXT_VARIANTS[variant]
+    return inputs.select(*[c for c in inputs.channels if c not in CONTEXT_CHANNELS or c in keep])
+
+
 def run_program(program: Case) -> list[dict]:
-    """The event-free runs of one program: teach from 3 runs, monitor the others (with overrides).
+    """The event-free runs of one program: teach from 3 runs, monitor the others (with overrides), once per
+    context variant (:data:`CONTEXT_VARIANTS`).
 
     Parameters
     ----------
@@ -308,27 +323,29 @@ def run_program(program: Case) -> list[dict]:
     rows = []
     taught = []
     runs = [()] * 3 + list(program.overrides)
-    limits = None
+    limits: dict = {}
     for j, overrides in enumerate(runs):
         events = tuple(ProcessEvent("feed_override", t, factor=f) for t, f in overrides)
         rec = simulate_event_cut(program.condition(), events=events, settings=settings,
                                  exit_length=program.exit_length, seed=program.seed + j)
-        if j == 3:
-            limits = teach(taught, ["force_x"])
+        if j == 3:                  # taught as each variant sees the runs (per block with the NC's context)
+            limits = {v: teach([_with_context(t, v) for t in taught], ["force_x"]) for v in CONTEXT_VARIANTS}
         limit = 3.0 * rec.meta["truth"]["stable_peak_n"] + 20.0
         forces = est.estimate(rec)
         inputs = detector_inputs(rec, forces)
         if j < 3:
             taught.append(inputs)
-        detectors = default_detectors("x", teeth=program.teeth, force_limit_n=limit, band_hz=est.signal.lpf_hz)
-        if limits is not None:
-            detectors.append(TeachInDetector(limits))
-        report = run_detectors(inputs, detectors, check=False)
+        detected = {}
+        for variant in CONTEXT_VARIANTS:
+            detectors = default_detectors("x", teeth=program.teeth, force_limit_n=limit, **estimate_limits(est))
+            if limits:
+                detectors.append(TeachInDetector(limits[variant]))
+            detected[variant] = _events_json(run_detectors(_with_context(inputs, variant), detectors, check=False))
         rev = max(1, int(round(60.0 / program.rpm * rec.fs)))
         engaged = maximum_filter1d(np.abs(rec["force_x"]), rev) > 0.05 * max(rec.meta["truth"]["stable_peak_n"], 1e-9)
         cutting = float(np.count_nonzero(engaged) / rec.fs)
         rows.append({**program.describe(), "run": j, "overrides": [list(o) for o in overrides],
                      "exit_length_mm": None if program.exit_length is None else program.exit_length * 1e3,
-                     "teach_in": limits is not None, "detected": _events_json(report),
+                     "teach_in": bool(limits), "detected": detected["none"], "detected_by_context": detected,
                      "cutting_s": cutting})
     return rows

@@ -31,11 +31,11 @@ from pathlib import Path
 from drivesense.bench.monitor import publisher_traces
 from drivesense.bench.rig import (CLI, close_quietly, read_log_lines, run_child, setup_demo_axis, subscribe_alarms,
                                   wait_until, write_config)
-from drivesense.serve.broker import LocalBroker, free_port
-from drivesense.serve.config import load_config
-from drivesense.serve.fleet import HOLD_S, owner_of
-from drivesense.serve.machine import MachineMonitor
-from drivesense.serve.sources import ReplaySource
+from drivesense.monitor.broker import LocalBroker, free_port
+from drivesense.monitor.config import load_config
+from drivesense.monitor.fleet import HOLD_S, owner_of
+from drivesense.monitor.machine import MachineMonitor
+from drivesense.monitor.sources import ReplaySource
 
 __all__ = ["run_failover", "RESUME_S_MAX"]
 

@@ -46,7 +46,7 @@ from drivesense.fleet.inputs import file_inputs
 from drivesense.fleet.jobs import DetectJob
 from drivesense.io import read_recording, write_recording
 from drivesense.recording import Recording
-from drivesense.serve.sources import SimulatedSource
+from drivesense.monitor.sources import SimulatedSource
 
 __all__ = ["run_fleet_bench", "TARGETS", "RECORDING_S", "N_INPUTS", "ROUNDS"]
 

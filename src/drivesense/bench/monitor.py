@@ -1,6 +1,6 @@
 """``drivesense bench monitor``: the live monitor service's throughput, alarm latency, faults and memory.
 
-Machines are the demo's axis X (:func:`~drivesense.serve.demo.demo_monitor`) fed simulated 10 kHz cuts (an
+Machines are the demo's axis X (:func:`~drivesense.monitor.demo.demo_monitor`) fed simulated 10 kHz cuts (an
 event per cut after a clean one).  *throughput*: N monitors on one pinned core (CPU per axis-second; baseline:
 the estimator alone), then a service of machines replayed at speed 1 on one core (lag, queue, samples due).
 *latency*: mosquitto, ``drivesense monitor CONFIG.toml`` with 20 mqtt machines, a real-time publisher, a
@@ -29,15 +29,15 @@ import psutil
 
 from drivesense.bench.rig import (CLI, close_quietly, end_process, mqtt_client, read_log_lines, run_child,
                                   setup_demo_axis, subscribe_alarms, wait_until, write_config)
-from drivesense.serve.broker import LocalBroker, find_mosquitto, free_port
+from drivesense.monitor.broker import LocalBroker, find_mosquitto, free_port
 from drivesense.archive import open_archive
 from drivesense.io import write_recording
 from drivesense.recording import Recording
-from drivesense.serve.config import load_config
-from drivesense.serve.demo import demo_estimator, demo_monitor
-from drivesense.serve.service import QUEUE_CHUNKS, MachineSpec, MonitorService
-from drivesense.serve.sources import ReplaySource, SimulatedSource
-from drivesense.serve.wire import MAGIC, Chunk, decode_chunk, encode_chunk
+from drivesense.monitor.config import load_config
+from drivesense.monitor.demo import demo_estimator, demo_monitor
+from drivesense.monitor.service import QUEUE_CHUNKS, MachineSpec, MonitorService
+from drivesense.monitor.sources import ReplaySource, SimulatedSource
+from drivesense.monitor.wire import MAGIC, Chunk, decode_chunk, encode_chunk
 
 __all__ = ["run_monitor_bench", "publisher_traces", "TARGETS", "CUT_S"]
 

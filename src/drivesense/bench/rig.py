@@ -15,8 +15,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from drivesense.io import write_recording
-from drivesense.serve.mqtt import parse_mqtt_url
-from drivesense.serve.sources import demo_condition
+from drivesense.monitor.mqtt import parse_mqtt_url
+from drivesense.monitor.sources import demo_condition
 from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
 __all__ = ["CLI", "read_log_lines", "wait_until", "run_child", "end_process", "mqtt_client", "close_quietly",

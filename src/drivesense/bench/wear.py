@@ -5,7 +5,7 @@
   the simulator's tool runout and without it, and each Table 1 experiment's own calibration design
   (one measurement per cut, as in the tool lives);
 * **tool_life**: 50 seeded tool lives (seeds 0-49, experiments A-H in turn) calibrated at the adaptive
-  cadence (:mod:`drivesense.monitor.cadence`) and tracked by :func:`drivesense.monitor.track_wear`
+  cadence (:mod:`drivesense.condition.cadence`) and tracked by :func:`drivesense.condition.track_wear`
   with its default settings; those settings were chosen on seeds 1000-1199, never on these; the same
   seeds at the paper's fixed cadence beside them (``tool_life_fixed_cadence``), and each with the
   oracle bound at its own calibration points;
@@ -74,8 +74,8 @@ def _coefficients() -> dict:
 
 def _tool_lives(cadence_settings=None) -> tuple[dict, dict]:
     """Track the benchmark's tool lives at the fixed cadence (None) or the adaptive one of these settings."""
-    from drivesense.monitor.cadence import AdaptiveCadence
-    from drivesense.monitor.wear import WearTrackerSettings, track_wear
+    from drivesense.condition.cadence import AdaptiveCadence
+    from drivesense.condition.wear import WearTrackerSettings, track_wear
     from drivesense.sim.tool_life import PASS_LENGTH, simulate_tool_life, table1_experiments
 
     names = "ABCDEFGH"
@@ -110,7 +110,7 @@ def _tool_lives(cadence_settings=None) -> tuple[dict, dict]:
                      "calibrations_median": float(np.median([r["calibrations"] for r in sub])),
                      "calibration_cuts_mean": float(np.mean([r["calibration_cuts"] for r in sub])),
                      "continuous": experiments[name].continuous}
-    out = {"cadence": "adaptive (drivesense.monitor.cadence, whole passes of "
+    out = {"cadence": "adaptive (drivesense.condition.cadence, whole passes of "
                       f"{PASS_LENGTH * 1e3:.1f} mm; continuous experiments calibrate on every sweep)"
                       if cadence_settings is not None else "fixed (the paper's Table 1 intervals)",
            "cadence_settings": None if cadence_settings is None else asdict(cadence_settings),
@@ -222,7 +222,7 @@ def run_wear_bench(progress=None) -> dict:
     """
     t0 = time.perf_counter()
     coeff = _coefficients()
-    from drivesense.monitor.cadence import CadenceSettings
+    from drivesense.condition.cadence import CadenceSettings
 
     fixed, _ = _tool_lives()
     life, pct = _tool_lives(CadenceSettings())

@@ -37,7 +37,7 @@ def check_detector_options(*, spindle_rpm: Optional[float] = None, teeth: Option
                            baseline_revs: Optional[int] = None, force_limit: Optional[float] = None) -> None:
     """Refuse ``--spindle-rpm`` <= 0, ``--teeth`` < 1, ``--baseline-revs`` < 3 and ``--force-limit`` <= 0
     (``detect``, ``batch detect``, ``monitor --replay``) before any work, naming the option."""
-    from drivesense.monitor.pipeline import check_detector_settings
+    from drivesense.events.pipeline import check_detector_settings
 
     check_detector_settings(spindle_rpm=spindle_rpm, teeth=teeth, baseline_revs=baseline_revs,
                             force_limit_n=force_limit)
@@ -56,8 +56,8 @@ def _teeth_line(choice) -> str:
 
 def _forces(trace: Path, read, est, method: str, idle, tare, axis_name: str):
     """The trace and the detector inputs (estimated forces + spindle speed, feed, positions)."""
-    from drivesense.monitor.pipeline import detector_inputs
-    from drivesense.serve.config import fit_or_tare
+    from drivesense.events.pipeline import detector_inputs
+    from drivesense.monitor.config import fit_or_tare
 
     rec = read(trace, axis_name) if est.drive == "ballscrew" else read(trace)
     fit_or_tare(est, method, idle_runs=(lambda: [read(p, axis_name) for p in idle]) if idle else None,
@@ -96,9 +96,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Detect process events (breakage, chipping, chatter, collision, overload, missing tool, teach-in limits)."""
         from drivesense.io import read_json_file
-        from drivesense.monitor import TeachLimits
-        from drivesense.monitor.detector import events_to_json
-        from drivesense.monitor.pipeline import detect_in_trace
+        from drivesense.events import TeachLimits
+        from drivesense.events.detector import events_to_json
+        from drivesense.events.pipeline import detect_in_trace, estimate_limits
+        from drivesense.nc_context import CONTEXT_CHANNELS
 
         check_output(json_path, "--json")
         if plot is not None:
@@ -110,15 +111,16 @@ def register(app: typer.Typer) -> None:
                               axis_name=axis_name)
         read = trace_reader(fs, resample, assume_si, bad_samples)
         rec, inputs = _forces(trace, read, est, method, idle, tare, axis_name)
-        found = detect_in_trace(rec, inputs, band_hz=getattr(getattr(est, "signal", None), "lpf_hz", None),
-                                teeth=teeth, spindle_rpm=spindle_rpm, limits=taught, force_limit_n=force_limit,
+        found = detect_in_trace(rec, inputs, **estimate_limits(est), teeth=teeth, spindle_rpm=spindle_rpm, limits=taught, force_limit_n=force_limit,
                                 baseline_revs=baseline_revs)
         report, detectors = found.report, found.detectors
         for note in found.notes:
             warn(note)
         payload = events_to_json(report.events, report.latency_s)
+        context = [c for c in CONTEXT_CHANNELS if c in inputs.channels]
         payload.update({"trace": str(trace), "method": method, **found.to_json(),
-                        "estimator_latency_s": float(inputs.meta["latency_s"])})
+                        "estimator_latency_s": float(inputs.meta["latency_s"]),
+                        "guards": {"nc_context": context, "feed_speed": "feed_speed" in inputs.channels}})
         write_json(json_path, payload)
         if plot is not None:
             from drivesense.plot import plot_events, save_figure
@@ -136,6 +138,9 @@ def register(app: typer.Typer) -> None:
         console.print(table)
         if found.teeth_choice is not None and found.teeth is not None:
             console.print(f"teeth: {_teeth_line(found.teeth_choice)}", markup=False)
+        console.print("guards: the NC's context (" + ", ".join(context) + ") and the path speed" if context else
+                      "guards: the path speed and the force alone (the trace has no NC context channels: tool, "
+                      "block, overrides, execution state, in-cut flag)", markup=False)
         console.print(f"{len(report.events)} event(s); declared latency {report.latency_s * 1e3:.1f} ms "
                       f"(detectors: {', '.join(d.name for d in detectors)})", markup=False)
 
@@ -148,10 +153,12 @@ def register(app: typer.Typer) -> None:
         method: MethodOpt = "vibration",
         idle: IdleOpt = None,
         tare: TareOpt = None,
-        align: Annotated[str, typer.Option(help="auto | time | path: bins of program time or of tool-path "
-                                                "length (path: a feed override does not shift them).")] = "auto",
+        align: Annotated[str, typer.Option(help="auto | time | path | block: bins of program time, of "
+                                                "tool-path length (a feed override does not shift them), or per "
+                                                "tool and block of the NC program (needs the block_number "
+                                                "channel); auto: block, else path, else time.")] = "auto",
         bin_width: Annotated[Optional[float], typer.Option("--bin-width", help="Bin width [s] (time) or [mm] "
-                                                           "(path); default 0.05 s or 0.5 mm.")] = None,
+                                                           "(path, block); default 0.05 s or 0.5 mm.")] = None,
         tolerance: Annotated[float, typer.Option(help="Relative widening of the runs' range [-].")] = 0.3,
         axis_name: AxisNameOpt = "x",
         axes_file: AxesOpt = None,
@@ -163,21 +170,22 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Learn teach-in bands (force and spindle power) from good runs of one NC program."""
         from drivesense.io import write_json_file
-        from drivesense.monitor import teach as teach_limits
+        from drivesense.events import teach as teach_limits
 
         check_output(out, "--out")
         est = build_estimator(method, axis_file=axis_file, axes_file=axes_file, model_dir=model_dir,
                               axis_name=axis_name)
         read = trace_reader(fs, resample, assume_si, bad_samples)
         runs = [_forces(t, read, est, method, idle, tare, axis_name)[1] for t in traces]
-        resolved = align
-        if align == "auto":
-            resolved = "path" if all(any(c.endswith("_table_position") for c in r.channels) for r in runs) else "time"
-        width = None if bin_width is None else (bin_width if resolved == "time" else bin_width * 1e-3)
+        # bins of time where asked for or where the runs have no table positions, else of path [mm -> m]
+        per_time = align == "time" or not all(any(c.endswith("_table_position") for c in r.channels) for r in runs)
+        width = None if bin_width is None else (bin_width if per_time else bin_width * 1e-3)
         limits = teach_limits(runs, align=align, bin_width=width, tolerance=tolerance)
         write_json_file(out, limits.to_json())
-        unit = "s" if limits.align == "time" else "mm"
-        shown = limits.bin_width if limits.align == "time" else limits.bin_width * 1e3
-        console.print(f"taught {limits.runs} runs: {limits.bins} bins of {shown:g} {unit} ({limits.align}), "
+        unit = "s" if limits.unit == "s" else "mm"
+        shown = limits.bin_width if limits.unit == "s" else limits.bin_width * 1e3
+        per_block = f" in {len(limits.segments)} block visit(s)" if limits.align == "block" else ""
+        console.print(f"taught {limits.runs} runs: {limits.bins} bins of {shown:g} {unit} ({limits.align}"
+                      f"{per_block}), "
                       f"channels {', '.join(limits.channels)}; collision/overload limit "
                       f"{limits.force_limit_n:.1f} N; wrote {out}", markup=False)

@@ -38,11 +38,11 @@ def _replay_config(trace: Path, read, *, axis_file, method, idle, tare, spindle_
                    baseline_revs, axis_name, axes_file, model_dir, speed):
     """The one-machine configuration of ``--replay TRACE`` (the options of ``drivesense detect``)."""
     from drivesense.errors import ConfigError
-    from drivesense.monitor.teeth import known_teeth
-    from drivesense.serve.config import MonitorConfig, build_axis
-    from drivesense.serve.machine import MachineMonitor
-    from drivesense.serve.service import MachineSpec, machine_id_from
-    from drivesense.serve.sources import ReplaySource
+    from drivesense.events.teeth import known_teeth
+    from drivesense.monitor.config import MonitorConfig, build_axis
+    from drivesense.monitor.machine import MachineMonitor
+    from drivesense.monitor.service import MachineSpec, machine_id_from
+    from drivesense.monitor.sources import ReplaySource
 
     rec = read(trace, axis_name)
     if "spindle_speed" not in rec.channels and spindle_rpm is None:
@@ -63,7 +63,7 @@ def _listen(http: tuple[str, int]):
     """The dashboard's socket, bound now (the monitor extra checked first): see ``serve.web.listen_socket``."""
     for module in ("fastapi", "uvicorn", "websockets"):     # websockets: uvicorn serves the live stream (/ws)
         _need(module)
-    from drivesense.serve.web import listen_socket
+    from drivesense.monitor.web import listen_socket
 
     return listen_socket(*http)
 
@@ -93,7 +93,7 @@ async def _run(service, http, stop: asyncio.Event, *, until_finished: bool, dura
             pass
     tasks = [asyncio.create_task(service.run(stop, until_finished=until_finished))]
     if http is not None:
-        from drivesense.serve.web import serve_http
+        from drivesense.monitor.web import serve_http
 
         tasks.append(asyncio.create_task(serve_http(service, http[0], http[1], stop, sock=sock)))
     if duration is not None:
@@ -172,8 +172,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Watch machines live: estimate forces, detect events, raise alarms, serve a dashboard."""
         from drivesense.errors import ConfigError
-        from drivesense.serve.config import MonitorConfig, load_config, parse_http
-        from drivesense.serve.sources import check_speed
+        from drivesense.monitor.config import MonitorConfig, load_config, parse_http
+        from drivesense.monitor.sources import check_speed
 
         given = [name for name, v in (("CONFIG", config), ("--replay", replay), ("--demo", demo)) if v]
         if len(given) != 1:
@@ -203,7 +203,7 @@ def register(app: typer.Typer) -> None:
                                      baseline_revs=baseline_revs, axis_name=axis_name, axes_file=axes_file,
                                      model_dir=model_dir, speed=speed)
         else:
-            from drivesense.serve.demo import demo_machine
+            from drivesense.monitor.demo import demo_machine
 
             console.print("simulating the demo machine (ball-screw stage, 2-flute end mill, 6000 min^-1) ...")
             cfg = MonitorConfig([demo_machine(speed=speed)])
@@ -216,7 +216,7 @@ def register(app: typer.Typer) -> None:
             if value is not None:
                 setattr(cfg, attr, value)
         if worker is not None:
-            from drivesense.serve.fleet import FleetWorker
+            from drivesense.monitor.fleet import FleetWorker
 
             cfg.fleet = FleetWorker(worker, cfg.events, group=fleet, hold_s=hold)
         if cfg.mqtt is not None or any(m.source.kind == "mqtt" for m in cfg.machines):
@@ -281,9 +281,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Publish a trace to an MQTT broker in drivesense's chunk format (an edge device, or a test feed)."""
         from drivesense.errors import ConfigError
-        from drivesense.serve.publisher import publish_recording
-        from drivesense.serve.service import check_machine_id, machine_id_from
-        from drivesense.serve.sources import check_speed
+        from drivesense.monitor.publisher import publish_recording
+        from drivesense.monitor.service import check_machine_id, machine_id_from
+        from drivesense.monitor.sources import check_speed
 
         _need("paho")
         if not chunk_ms > 0:

@@ -191,7 +191,7 @@ def track(
     """Track tool wear through a session: state, dominant mode (flank / chipping), end-of-life alarm, and
     when to calibrate next (sooner when the wear speeds up or jumps)."""
     from drivesense.errors import ConfigError
-    from drivesense.monitor.wear import WearTracker, track_wear
+    from drivesense.condition.wear import WearTracker, track_wear
 
     for name, value in (("--interval", interval), ("--cut-length", cut_length)):
         if value is not None and (not math.isfinite(value) or value <= 0):
@@ -239,7 +239,7 @@ def _next_calibration(session: Path, report, interval: Optional[float], cut_leng
     import numpy as np
 
     from drivesense.io.csv import sidecar_path
-    from drivesense.monitor.cadence import propose_from_states
+    from drivesense.condition.cadence import propose_from_states
 
     about = {}
     side = sidecar_path(session)

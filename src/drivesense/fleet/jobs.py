@@ -185,7 +185,7 @@ class EstimateJob(BatchJob):
 
     def prepare(self) -> None:
         from drivesense.estimate.registry import make_from_files
-        from drivesense.serve.config import fit_or_tare
+        from drivesense.monitor.config import fit_or_tare
 
         est = make_from_files(self.method, axis_file=self.axis_file, axes_file=self.axes_file,
                               model_dir=self.model_dir, axis_name=self.axis_name)
@@ -266,7 +266,7 @@ class DetectJob(EstimateJob):
     ----------
     teeth : int, optional
         ``--teeth`` (default: the trace's tool, else inferred from the spectrum: see
-        :func:`drivesense.monitor.teeth.resolve_teeth`).
+        :func:`drivesense.events.teeth.resolve_teeth`).
     spindle_rpm : float, optional
         ``--spindle-rpm`` [min^-1] (default: the trace's spindle_speed).
     limits : Path, optional
@@ -293,7 +293,7 @@ class DetectJob(EstimateJob):
 
     def prepare(self) -> None:
         from drivesense.io import read_json_file
-        from drivesense.monitor import TeachLimits
+        from drivesense.events import TeachLimits
 
         super().prepare()
         if self.limits is not None:
@@ -301,13 +301,12 @@ class DetectJob(EstimateJob):
 
     def _run(self, rec: Any, out_stem: Path) -> dict:
         from drivesense.io import write_json_file
-        from drivesense.monitor.detector import events_to_json
-        from drivesense.monitor.pipeline import detect_in_trace, detector_inputs
+        from drivesense.events.detector import events_to_json
+        from drivesense.events.pipeline import detect_in_trace, detector_inputs, estimate_limits
 
         est, force = self.forces(rec)
         inputs = detector_inputs(rec, force)
-        found = detect_in_trace(rec, inputs, band_hz=getattr(getattr(est, "signal", None), "lpf_hz", None),
-                                teeth=self.teeth, spindle_rpm=self.spindle_rpm, limits=self.taught,
+        found = detect_in_trace(rec, inputs, **estimate_limits(est), teeth=self.teeth, spindle_rpm=self.spindle_rpm, limits=self.taught,
                                 force_limit_n=self.force_limit, baseline_revs=self.baseline_revs)
         events = found.report.events
         payload = events_to_json(events, found.report.latency_s)
@@ -350,7 +349,7 @@ class WearJob(BatchJob):
     def _run(self, path: Any, out_stem: Path) -> dict:
         from drivesense.identify.coefficients import read_cut_table
         from drivesense.io import write_json_file
-        from drivesense.monitor.wear import track_wear
+        from drivesense.condition.wear import track_wear
 
         table = read_cut_table(path, diameter=self.diameter, flutes=self.flutes, mode=self.mode)
         report = track_wear(table, reference=self.reference)

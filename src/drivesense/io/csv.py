@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import csv as _csv
 import errno
+import functools
 import json
 import re
 import warnings
@@ -44,6 +45,7 @@ import numpy as np
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
 from ..metadata import meta_to_json
+from ..nc_context import COUNT_CHANNELS, context_value
 from .column_map import ColumnMap
 from .plausibility import PlausibilityLimits, check_channels, check_policy, enforce_policy, repaired_meta
 
@@ -180,14 +182,21 @@ def _lines(path: Path) -> list[str]:
 
 
 def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str,
-                  usecols: list[int] | None = None) -> np.ndarray:
-    """The data rows as a float array (n_rows, n_cols, or the columns `usecols`); errors name line and column."""
+                  usecols: list[int] | None = None, coded: Mapping[int, str] | None = None) -> np.ndarray:
+    """The data rows as a float array (n_rows, n_cols, or the columns `usecols`); errors name line and column.
+
+    ``coded`` maps file columns to the NC context channel their cells are
+    (``ACTIVE``, ``O1234``: coded by :func:`~drivesense.nc_context.context_value`).
+    """
+    coded = dict(coded or {})
+    converters = {k: functools.partial(context_value, name) for k, name in coded.items()}
     try:  # Latin-1 never fails to decode; numbers are ASCII anyway
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", "loadtxt: input contained no data")
             return np.loadtxt(path, delimiter=delim, comments="#", skiprows=header_lineno,
-                              dtype=np.float64, ndmin=2, encoding="latin-1", usecols=usecols)
-    except ValueError as exc:
+                              dtype=np.float64, ndmin=2, encoding="latin-1", usecols=usecols,
+                              converters=converters or None)
+    except (ValueError, InvalidSignalError) as exc:
         first_error = str(exc)
     lines = _lines(path)
     for lineno in _data_linenos(lines, header_lineno):  # slow path: find the first bad cell
@@ -199,7 +208,9 @@ def _parse_values(path: Path, header_lineno: int, header: list[str], delim: str,
             if usecols is not None and k not in usecols:
                 continue
             try:
-                float(cell)
+                context_value(coded[k], cell) if k in coded else float(cell)
+            except InvalidSignalError as exc:
+                raise InvalidSignalError(f"{path.name}, line {lineno}, column {col!r}: {exc}") from None
             except ValueError:
                 raise InvalidSignalError(f"{path.name}, line {lineno}, column {col!r}: "
                                          f"{cell.strip()!r} is not a number") from None
@@ -337,6 +348,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
                               f"channel {name!r}")
         seen[name] = cell
         quantity = _units.quantity_of_channel(name)
+        if unit is None and name in COUNT_CHANNELS:
+            unit = "1"                               # a tool, a block, a state: counts and codes have no unit
         if unit is None:
             no_unit.append(cell)
             unit = _units.si_unit(quantity) if quantity else "1"
@@ -364,7 +377,8 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
 
     # --- data
     usecols = [c[0] for c in columns] if column_map is not None else None
-    values = _parse_values(path, header_lineno, header, delim, usecols)
+    coded = {c[0]: c[1] for c in columns if c[1] in ("execution", "program_number")}
+    values = _parse_values(path, header_lineno, header, delim, usecols, coded)
     if values.size == 0:
         raise InvalidSignalError(f"{path.name}: no data rows after the header "
                                  f"(line {header_lineno})")

@@ -38,8 +38,8 @@ from ..errors import InvalidSignalError
 from .mtconnect_assets import read_asset_command
 from .xml_safe import XMLLimits, local_name, parse_bytes
 
-__all__ = ["DataItem", "DeviceModel", "Observation", "StreamsDocument", "AgentError", "MTConnectWarning",
-           "parse_devices", "parse_streams", "parse_shdr", "to_recording", "read_mtconnect", "parse_timestamp", "MTC_UNITS"]
+__all__ = ["context_channel", "context_factor", "DataItem", "DeviceModel", "Observation", "StreamsDocument",
+           "AgentError", "MTConnectWarning", "parse_devices", "parse_streams", "parse_shdr", "to_recording", "read_mtconnect", "parse_timestamp", "MTC_UNITS"]
 
 _REV = 2.0 * math.pi
 #: MTConnect unit -> (factor to SI, drivesense SI unit).
@@ -118,6 +118,52 @@ class DataItem:
         """
         unit = (self.native_units if native and self.native_units else self.units) or "COUNT"
         return MTC_UNITS.get(unit)
+
+
+def context_channel(item: DataItem) -> str | None:
+    """The NC context channel (:mod:`drivesense.nc_context`) a data item reports, or None.
+
+    ``EXECUTION`` -> ``execution``; ``PROGRAM`` -> ``program_number``;
+    ``LINE_NUMBER`` (absolute) or the older ``LINE`` -> ``block_number``;
+    ``TOOL_NUMBER`` (or ``TOOL_ID``) -> ``tool_number``;
+    ``PATH_FEEDRATE_OVERRIDE`` (programmed) or ``PATH_FEEDRATE``/``OVERRIDE``
+    -> ``feed_override``; ``ROTARY_VELOCITY_OVERRIDE`` or a spindle speed's
+    ``OVERRIDE`` -> ``spindle_override``.
+
+    Parameters
+    ----------
+    item : DataItem
+        From a Devices document.
+    """
+    typ, sub = item.type, item.sub_type
+    if typ == "EXECUTION":
+        return "execution"
+    if typ == "PROGRAM" and sub in ("", "MAIN", "ACTIVE"):
+        return "program_number"
+    if typ in ("LINE_NUMBER", "LINE") and sub in ("", "ABSOLUTE"):
+        return "block_number"
+    if typ in ("TOOL_NUMBER", "TOOL_ID"):
+        return "tool_number"
+    if (typ == "PATH_FEEDRATE_OVERRIDE" and sub in ("", "PROGRAMMED")) or (typ == "PATH_FEEDRATE" and sub == "OVERRIDE"):
+        return "feed_override"
+    if typ == "ROTARY_VELOCITY_OVERRIDE" or (typ in ("ROTARY_VELOCITY", "SPINDLE_SPEED") and sub == "OVERRIDE"):
+        return "spindle_override"
+    return None
+
+
+def context_factor(channel: str, item: DataItem) -> float:
+    """Factor from a context data item's values to the channel's: overrides in percent (MTConnect's unit) -> ratio.
+
+    Parameters
+    ----------
+    channel : str
+        The context channel.
+    item : DataItem
+        The data item reporting it.
+    """
+    if channel in ("feed_override", "spindle_override") and (item.units or "PERCENT").upper() == "PERCENT":
+        return 0.01
+    return 1.0
 
 
 def _channel(component: str, cname: str, typ: str, sub: str, name: str) -> str:

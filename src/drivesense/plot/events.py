@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 from drivesense.plot.figure import new_figure
 
 if TYPE_CHECKING:
-    from drivesense.monitor.pipeline import DetectionReport
+    from drivesense.events.pipeline import DetectionReport
     from drivesense.recording import Recording
 
 __all__ = ["plot_events"]

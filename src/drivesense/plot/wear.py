@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 from drivesense.plot.figure import new_figure
 
 if TYPE_CHECKING:
-    from drivesense.monitor.wear import WearReport
+    from drivesense.condition.wear import WearReport
 
 __all__ = ["plot_wear_track"]
 

@@ -239,5 +239,5 @@ def simulate_event_cut(cond: CutCondition, *, events=(), tool: EndMill | None = 
         "x": [[m.frequency_hz, m.damping_ratio, m.stiffness] for m in dynamics.x],
         "y": [[m.frequency_hz, m.damping_ratio, m.stiffness] for m in dynamics.y]}
     rec = run_scenario(cond, settings, seed, True, f"{cond.name}_events_seed{seed}", overrides=overrides, forces=forces,
-               extra_meta={"truth": truth})
+                       extra_meta={"truth": truth}, part_length=exit_length)
     return rec

@@ -33,6 +33,7 @@ from drivesense.machine.friction import Ripple, ripple_values
 from drivesense.machine.milling import CuttingCoefficients, EndMill, MillingCut, feed_per_tooth, milling_forces
 from drivesense.machine.presets import table1_stage
 from drivesense.machine.stage import StagePhysics
+from drivesense.nc_context import ACTIVE, program_code
 from drivesense.recording import Recording
 from drivesense.sim.encoders import LinearScale, RotaryEncoder
 from drivesense.sim.servo import ServoConfig, run_servo
@@ -220,8 +221,17 @@ def _process_forces(cond: CutCondition, settings: ScenarioSettings, times: np.nd
 
 
 def run_scenario(cond: CutCondition, settings: ScenarioSettings, seed: int, cutting: bool, label: str, *,
-                 overrides=(), forces=None, extra_meta=None) -> Recording:
+                 overrides=(), forces=None, extra_meta=None, part_length: float | None = None) -> Recording:
     """One simulated run of the stage (what :func:`simulate_cut` and :func:`simulate_idle` run).
+
+    The trace carries the NC's context (:mod:`drivesense.nc_context`) as the
+    controller would report it: tool 1, the program (a code of the
+    condition's name), block 10 while the axis stands and 20 for the feed
+    move, the feed override stepping at each override change (the axis
+    follows over the ramp), spindle override 1, execution ``ACTIVE``, and
+    ``in_cut`` from the first contact until the tool has left the part (a
+    cutting run; ``part_length``), as a CAM program that knows the stock
+    marks it.
 
     Parameters
     ----------
@@ -242,6 +252,8 @@ def run_scenario(cond: CutCondition, settings: ScenarioSettings, seed: int, cutt
         grid, replacing the milling force model (e.g. with tool vibration and events).
     extra_meta : dict, optional
         Metadata added to the trace's.
+    part_length : float, optional
+        Length of the part along the feed [m] from the first contact (None: the part outlasts the run).
 
     Returns
     -------
@@ -312,8 +324,36 @@ def run_scenario(cond: CutCondition, settings: ScenarioSettings, seed: int, cutt
         "force_x": forces_x,
         "force_y": forces_y,
         "force_z": forces_z,
+        **_nc_context(cond, settings, feed_axis, t, overrides, cutting, part_length),
     }
     return Recording.from_arrays(channels, fs=fs, meta=meta)
+
+
+#: Blocks of the stage's program: the axis stands (N10), the feed move (N20).
+STAND_BLOCK, FEED_BLOCK = 10.0, 20.0
+
+
+def _nc_context(cond: CutCondition, settings: ScenarioSettings, feed_axis, t: np.ndarray, overrides, cutting: bool,
+                part_length: float | None) -> dict[str, np.ndarray]:
+    """The controller's context channels of one run (see :func:`run_scenario`)."""
+    n = t.size
+    feed_override = np.ones(n)
+    for t_change, factor in overrides:
+        feed_override[t >= t_change] = factor
+    moving = np.abs(feed_axis.velocity) > 0.0
+    first_move = int(np.argmax(moving)) if moving.any() else n
+    block = np.full(n, STAND_BLOCK)
+    block[first_move:] = FEED_BLOCK
+    in_cut = np.zeros(n)
+    if cutting:
+        travel = np.abs(feed_axis.position - np.interp(settings.t_contact, t, feed_axis.position))
+        inside = t >= settings.t_contact
+        if part_length is not None:
+            inside &= travel <= part_length + settings.tool.diameter     # the tool's far edge has left the part
+        in_cut[inside] = 1.0
+    return {"tool_number": np.ones(n), "program_number": np.full(n, program_code(cond.name)),
+            "block_number": block, "feed_override": feed_override, "spindle_override": np.ones(n),
+            "execution": np.full(n, ACTIVE), "in_cut": in_cut}
 
 
 def simulate_cut(cond: CutCondition, settings: ScenarioSettings | None = None, *, seed: int = 0,

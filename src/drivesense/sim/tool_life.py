@@ -2,7 +2,7 @@
 
 One simulated tool cuts 1018 steel until it reaches its life criterion; at the experiment's
 calibration interval it makes a set of calibration cuts whose average spindle power is recorded
-(with the air-cut power just before each cut), exactly what :mod:`drivesense.monitor.wear` reads.
+(with the air-cut power just before each cut), exactly what :mod:`drivesense.condition.wear` reads.
 
 Physics and what is assumed (the paper gives the conditions but neither tool lives nor wear rates):
 
@@ -421,7 +421,7 @@ def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_c
         ``cadence(table, distance) -> interval``: after each calibration, given its cuts with the
         measured cutting power (a :class:`~drivesense.machine.cutting_power.CutTable`) and its cut
         distance [m], the wear-cut distance to the next calibration [m] (e.g.
-        :class:`drivesense.monitor.cadence.AdaptiveCadence`). Default: the experiment's fixed
+        :class:`drivesense.condition.cadence.AdaptiveCadence`). Default: the experiment's fixed
         ``calibration_interval``. Continuous experiments calibrate on every sweep whatever it says.
 
     Returns

@@ -34,7 +34,8 @@ from numba import njit
 
 from drivesense.errors import ConfigError, SignalTooShortError
 from drivesense.machine.milling import check_number
-from drivesense.monitor.detector import Detector, feed_steady, spindle_speed_of
+from drivesense.events.detector import Detector, spindle_speed_of
+from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["ChatterDetector"]
 
@@ -396,7 +397,10 @@ class ChatterDetector(Detector):
         force = np.ascontiguousarray(arrays[self.channel_names[0]], dtype=float)
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
-        feed_ok = feed_steady(arrays, state)
+        feed_ok = process_steady(arrays, state)
+        unsteady = np.flatnonzero(feed_ok < 0.5)
+        if unsteady.size:                        # the last sample of a feed change or a commanded change
+            state["last_unsteady"] = start + int(unsteady[-1])
         stat = np.empty(n)
         thr = np.empty(n)
         held = np.zeros(n)
@@ -418,6 +422,9 @@ class ChatterDetector(Detector):
                                                      self.spectrum_samples(fs), self.prominence,
                                                      self.exclude_hz)
                     here = start + done - 1
+                    # a spectrum over a feed change (an override's ramp) holds its sidebands: no confirmation
+                    # until the window has left the change
+                    ok = ok and here - self.spectrum_samples(fs) >= state.get("last_unsteady", -1)
                     pending = state.get("pending")
                     df = fs / self.spectrum_samples(fs)
                     if ok and pending is not None and here - pending[1] <= 4 * self.recheck_s * fs \
@@ -428,7 +435,7 @@ class ChatterDetector(Detector):
                         events.append((here, "chatter", min(1.0, 0.5 * cand[0] / self.threshold),
                                        {"statistic": float(cand[0]), "threshold": self.threshold,
                                         "chatter_frequency_hz": freq, "prominence": prom,
-                                        "forced_rms_n": float(cand[1])}))
+                                        "forced_rms_n": float(cand[1]), "guards": guard_source(state)}))
                     elif ok:
                         state["pending"] = (freq, here)
                         delay = _TWO_PI / cand[2] * fs

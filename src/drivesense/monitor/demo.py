@@ -8,9 +8,9 @@ from __future__ import annotations
 from dataclasses import replace
 from functools import lru_cache
 
-from drivesense.serve.machine import AxisPipeline, MachineMonitor
-from drivesense.serve.service import MachineSpec
-from drivesense.serve.sources import SimulatedSource, demo_condition
+from drivesense.monitor.machine import AxisPipeline, MachineMonitor
+from drivesense.monitor.service import MachineSpec
+from drivesense.monitor.sources import SimulatedSource, demo_condition
 
 __all__ = ["demo_estimator", "demo_monitor", "demo_machine", "DEMO_TEETH", "DEMO_FORCE_LIMIT_N"]
 
@@ -44,11 +44,11 @@ def demo_monitor(machine: str = "demo") -> MachineMonitor:
     machine : str
         Machine id.
     """
-    from drivesense.monitor.pipeline import default_detectors
+    from drivesense.events.pipeline import default_detectors, estimate_limits
 
     est = demo_estimator()
     return MachineMonitor(machine, [AxisPipeline("x", est, default_detectors(
-        "x", teeth=DEMO_TEETH, force_limit_n=DEMO_FORCE_LIMIT_N, band_hz=est.signal.lpf_hz))])
+        "x", teeth=DEMO_TEETH, force_limit_n=DEMO_FORCE_LIMIT_N, **estimate_limits(est)))])
 
 
 def demo_machine(machine: str = "demo", *, seed: int = 1, speed: float = 1.0, cut_s: float = 4.0,

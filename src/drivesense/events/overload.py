@@ -1,7 +1,7 @@
 """Collision and overload: the force crosses a limit, and the machine must stop now.
 
 The detector compares every sample of a force channel with a limit [N] (the
-machine's or fixture's rating, or a taught limit: :mod:`drivesense.monitor.teach`)
+machine's or fixture's rating, or a taught limit: :mod:`drivesense.events.teach`)
 and raises a stop event on the first sample past it; it declares no delay of
 its own (the estimator's latency is the whole delay).  The event is a
 ``collision`` when the force rose from below half the limit within
@@ -19,7 +19,7 @@ from numba import njit
 
 from drivesense.errors import ConfigError
 from drivesense.machine.milling import check_number
-from drivesense.monitor.detector import Detector
+from drivesense.events.detector import Detector
 
 __all__ = ["OverloadDetector"]
 

@@ -20,16 +20,16 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError
-from drivesense.serve import (Chunk, MachineSpec, MonitorService, ReplaySource, WireError,
+from drivesense.monitor import (Chunk, MachineSpec, MonitorService, ReplaySource, WireError,
                               decode_chunk, encode_chunk)
-from drivesense.serve.machine import FeedSpeedStream, Ring
-from drivesense.serve.outputs import EventLog
+from drivesense.monitor.machine import FeedSpeedStream, Ring
+from drivesense.monitor.outputs import EventLog
 
 
 @pytest.fixture(scope="module")
 def breakage_cut():
     """A 4 s demo cut whose flute breaks at about 2.16 s (the demo's second cut)."""
-    from drivesense.serve.sources import SimulatedSource
+    from drivesense.monitor.sources import SimulatedSource
 
     rec = SimulatedSource("m", cut_s=4.0).simulate_cut(1)
     assert [e["kind"] for e in rec.meta["truth"]["events"]] == ["breakage"]
@@ -45,7 +45,7 @@ def files(tmp_path_factory, breakage_cut):
 
     from drivesense.cli import app
     from drivesense.io import write_recording
-    from drivesense.serve.sources import demo_condition
+    from drivesense.monitor.sources import demo_condition
     from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
     folder = tmp_path_factory.mktemp("monitor")
@@ -116,7 +116,7 @@ def test_feed_speed_stream_is_chunking_invariant_and_right_on_a_ramp():
 
 # ----------------------------------------------------------------------------------------------- one machine
 def test_machine_finds_the_breakage_and_survives_bad_chunks(breakage_cut):
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     truth = breakage_cut.meta["truth"]["events"][0]["time_s"]
     clean = demo_monitor("m")
@@ -146,7 +146,7 @@ def test_machine_finds_the_breakage_and_survives_bad_chunks(breakage_cut):
 
 
 def test_machine_counts_a_gap_and_keeps_going(breakage_cut):
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     mon = demo_monitor("m")
     chunks = _chunks(breakage_cut)
@@ -162,7 +162,7 @@ def test_machine_counts_a_gap_and_keeps_going(breakage_cut):
 
 
 def test_segments_hold_the_signal_around_each_event(breakage_cut):
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     mon = demo_monitor("m")
     for c in _chunks(breakage_cut):
@@ -177,7 +177,7 @@ def test_segments_hold_the_signal_around_each_event(breakage_cut):
 
 
 def test_force_limit_changes_while_running():
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     mon = demo_monitor("m")
     mon.set_force_limit("x", 123.0)
@@ -224,7 +224,7 @@ def test_event_log_line_is_readable_at_once_and_synced_by_the_syncer(tmp_path):
 
 
 def test_warm_up_leaves_the_machine_untouched():
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     mon = demo_monitor("m")
     mon.warm_up()
@@ -232,7 +232,7 @@ def test_warm_up_leaves_the_machine_untouched():
 
 # ----------------------------------------------------------------------------------------------- service
 def _replay_service(rec, tmp_path, **kw):
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     spec = MachineSpec("m", ReplaySource("m", rec, speed=0), demo_monitor("m"))
     return MonitorService([spec], events_path=tmp_path / "ev.jsonl", archive=tmp_path / "a.sqlite", **kw)
@@ -260,8 +260,8 @@ def test_service_logs_archives_and_never_doubles_after_a_restart(breakage_cut, t
 
 
 def test_one_failing_source_never_stops_the_others(breakage_cut, tmp_path):
-    from drivesense.serve.demo import demo_monitor
-    from drivesense.serve.sources import Source
+    from drivesense.monitor.demo import demo_monitor
+    from drivesense.monitor.sources import Source
 
     class Broken(Source):
         kind = "broken"
@@ -291,7 +291,7 @@ def test_one_failing_source_never_stops_the_others(breakage_cut, tmp_path):
 
 
 def test_config_errors_name_the_machine_and_the_key(files, tmp_path):
-    from drivesense.serve.config import load_config
+    from drivesense.monitor.config import load_config
 
     def config(text):
         p = tmp_path / "c.toml"
@@ -386,7 +386,7 @@ def test_webhook_posts_each_event_and_counts_failures(breakage_cut, tmp_path):
         assert svc.webhook.failed == 0
     finally:
         server.shutdown()
-    from drivesense.serve.outputs import Webhook
+    from drivesense.monitor.outputs import Webhook
 
     dead = Webhook(f"http://127.0.0.1:{server.server_port}/hook", timeout=0.5)
     dead.offer({"id": "x"})

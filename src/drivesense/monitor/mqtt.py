@@ -1,4 +1,4 @@
-"""The ``mqtt`` source: chunks an edge device publishes to a broker (format: :mod:`~drivesense.serve.wire`).
+"""The ``mqtt`` source: chunks an edge device publishes to a broker (format: :mod:`~drivesense.monitor.wire`).
 
 Every ``mqtt`` source of one service on one broker shares one connection (:class:`BrokerLink`): one paho
 network thread, one persistent session (QoS 1; the broker keeps what arrives while the service is away
@@ -12,7 +12,7 @@ once the sources started together have added their topics), and when the service
 closes before the sources return, each handing on what its inbox holds.  What the broker had not delivered
 it keeps for the next run: nothing is lost.
 
-A machine shared by a fleet of workers (:mod:`~drivesense.serve.fleet`) has a session of its own instead
+A machine shared by a fleet of workers (:mod:`~drivesense.monitor.fleet`) has a session of its own instead
 (``hold_s`` given): MQTT 5, client id per machine, so the broker lets one worker at a time hold it and
 keeps the stream for the next holder.  Its chunks are acknowledged by hand, only once they are processed,
 their events logged and the claim's mark written, and only ``hold_s`` of signal after that: a worker that
@@ -31,8 +31,8 @@ from collections import deque
 from typing import Any
 
 from drivesense.errors import ConfigError
-from drivesense.serve.sources import Put, Source
-from drivesense.serve.wire import StreamCursor, WireError, decode_chunk
+from drivesense.monitor.sources import Put, Source
+from drivesense.monitor.wire import StreamCursor, WireError, decode_chunk
 
 __all__ = ["MQTTSource", "BrokerLink", "parse_mqtt_url", "RECEIVE_MAXIMUM", "SESSION_EXPIRY_S", "MAX_HOLD_S"]
 
@@ -347,7 +347,7 @@ class MQTTSource(Source):
                 "messages": self.messages}
 
     async def run(self, put: Put, stop: asyncio.Event) -> None:
-        """Subscribe and hand on every message until stopped (see :class:`~drivesense.serve.sources.Source`).
+        """Subscribe and hand on every message until stopped (see :class:`~drivesense.monitor.sources.Source`).
 
         Once stopped, a source that paho acknowledges for (no ``hold_s``) goes on handing on its inbox until the
         link's connection is closed (every source of the link stopped) and the inbox is empty: the broker

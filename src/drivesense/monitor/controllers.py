@@ -19,10 +19,11 @@ from typing import Any
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.io.mtconnect import DeviceModel, Observation, snake_case
+from drivesense.io.mtconnect import DeviceModel, Observation, context_channel, context_factor, snake_case
 from drivesense.io.mtconnect_client import MTConnectClient, StreamLog
-from drivesense.serve.sources import Put, Source
-from drivesense.serve.wire import Chunk
+from drivesense.nc_context import CONTEXT_CHANNELS, context_value
+from drivesense.monitor.sources import Put, Source
+from drivesense.monitor.wire import Chunk
 from drivesense.units import SI_UNITS, quantity_of_channel, to_si
 
 __all__ = ["MTConnectSource", "OPCUASource", "MAX_FILL_S"]
@@ -73,7 +74,10 @@ class MTConnectSource(Source):
     channels : dict of str to str, optional
         dataItem id or name (or the channel ``drivesense mtconnect probe`` shows) -> drivesense channel;
         only these are emitted.  Default: every numeric SAMPLE with an SI unit that ``/current`` reports,
-        named as the import names it.
+        named as the import names it, and the NC's context (``Execution``, ``Program``, ``LineNumber``,
+        ``ToolNumber``, the feed and spindle overrides: :func:`~drivesense.io.mtconnect.context_channel`;
+        the first path's where a controller has two).  Context channels are held between reports, their
+        states and program names coded (:mod:`drivesense.nc_context`).
     interval_s : float
         Time between polls [s].
     count : int
@@ -113,6 +117,7 @@ class MTConnectSource(Source):
         self._instance = self._start_us = None             # agent instanceId; grid start [us since the epoch]
         self._routes: dict[str, tuple | None] = {}         # dataItem key -> (channel, factor to SI, DataItem)
         self._by_id: dict[str, str] = {}                   # dataItem id -> configured channel
+        self._context_items: dict[str, str] = {}           # context channel -> the dataItem id reporting it
         self._pending: dict[str, list] = {}                # channel -> [(times [us], SI values)] after the anchor
         self._newest: dict[str, int] = {}                  # channel -> newest report [us]
         self._anchor: dict[str, tuple[float, float]] = {}  # last emitted sample: time from start [s], value
@@ -135,6 +140,9 @@ class MTConnectSource(Source):
         self._by_id.clear()
         for key, name in (self.channels or {}).items():
             item = devices.lookup(key) or next((i for i in devices.items if i.channel == key), None)
+            if item is not None and name in CONTEXT_CHANNELS:       # an event (a state, a program name): coded
+                self._by_id[item.id] = name
+                continue
             scale, q = item and item.scale(), quantity_of_channel(name)
             if item is None or scale is None or (q is not None and SI_UNITS[q] != scale[1]):
                 raise ConfigError(f"mtconnect source {self.url}: " + (
@@ -147,7 +155,11 @@ class MTConnectSource(Source):
     def _route(self, key: str) -> tuple | None:
         if key not in self._routes:
             item, route = self._devices.lookup(key) if self._devices else None, None
-            if item is not None and item.category == "SAMPLE" and item.scale() is not None:
+            context = None if item is None else (self._by_id.get(item.id) if self.channels is not None
+                                                  else context_channel(item))
+            if context in CONTEXT_CHANNELS and self._context_items.setdefault(context, item.id) == item.id:
+                route = (context, context_factor(context, item), item)      # the first path's, where there are two
+            elif item is not None and item.category == "SAMPLE" and item.scale() is not None:
                 (factor, unit), name, q = item.scale(), item.channel, quantity_of_channel(item.channel)
                 if self.channels is not None:
                     name = self._by_id.get(item.id)
@@ -159,14 +171,22 @@ class MTConnectSource(Source):
 
     def _points(self, obs: Observation) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """(channel, times [us], SI values) of one observation; empty for events and unmapped items."""
-        route = None if obs.kind not in ("SAMPLE", "TIME_SERIES") or isinstance(obs.value, str) \
-            else self._route(obs.key)
+        route = self._route(obs.key) if obs.kind in ("SAMPLE", "TIME_SERIES", "EVENT") else None
         if route is None:
             return []
         name, factor, item = route
         t = np.array([obs.time_us], dtype=np.int64)
+        if name in CONTEXT_CHANNELS:                    # a state, a program, a block, an override: held, coded
+            try:
+                value = np.nan if obs.value is None else context_value(name, obs.value) * factor
+            except InvalidSignalError:
+                self.ignored.add(f"{name}={obs.value!r}")
+                return []
+            return [(name, t, np.array([value]))]
+        if obs.kind == "EVENT" or isinstance(obs.value, str):
+            return []
         if obs.kind == "TIME_SERIES" and obs.value is not None:
-            rate, n = obs.extra.get("sample_rate") or item.sample_rate, obs.value.size
+            rate, n = obs.extra.get("sample_rate") or (item.sample_rate if item else None), obs.value.size
             if not rate:
                 return []
             t = obs.time_us - np.round((n - 1 - np.arange(n)) * 1e6 / rate).astype(np.int64)
@@ -225,7 +245,7 @@ class MTConnectSource(Source):
             order = np.argsort(t_all, kind="stable")[::-1]
             rt, idx = np.unique(t_all[order], return_index=True)      # the last report wins at equal times
             rv = v_all[order][idx]
-            arrays[n] = np.interp(grid, rt, rv) if self.method == "linear" else \
+            arrays[n] = np.interp(grid, rt, rv) if self.method == "linear" and n not in CONTEXT_CHANNELS else \
                 rv[np.clip(np.searchsorted(rt, grid, side="right") - 1, 0, None)]
             self._anchor[n] = (float(grid[-1]), float(arrays[n][-1]))
             if (rel > grid[-1]).any():
@@ -389,7 +409,8 @@ class OPCUASource(Source):
         node_id : str
             The node's id as a string.
         value : Any
-            A number or a list/array of consecutive samples [the channel's unit in ``units``].
+            A number or a list/array of consecutive samples [the channel's unit in ``units``]; for an NC
+            context channel also a state's or a program's name (:func:`~drivesense.nc_context.context_value`).
         stamp : datetime, optional
             Its source timestamp (UTC).
         """
@@ -398,12 +419,14 @@ class OPCUASource(Source):
             return
         self.notifications += 1
         try:
+            if name in CONTEXT_CHANNELS and not isinstance(value, (list, tuple, np.ndarray)):
+                value = context_value(name, getattr(value, "Text", value))   # a state's name, a LocalizedText
             arr = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
             if not arr.size or not np.all(np.isfinite(arr)):
                 raise ValueError
             if name in self.units:
                 arr = to_si(arr, self.units[name], quantity=quantity_of_channel(name), name=name)[0]
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, InvalidSignalError):
             self.bad += 1                             # None (bad status), text, NaN: the last value holds
             return
         self._fresh.add(name)

@@ -1,4 +1,4 @@
-"""The monitor's HTTP API and WebSocket (drivesense.serve.web) against a service that has processed cuts.
+"""The monitor's HTTP API and WebSocket (drivesense.monitor.web) against a service that has processed cuts.
 
 The demo machine (the second cut breaks a flute) is played as fast as the
 service takes it for four cuts of 3 s; the machine keeps its buffers after the
@@ -18,9 +18,9 @@ pytest.importorskip("httpx")
 
 from fastapi.testclient import TestClient  # noqa: E402
 
-from drivesense.serve.demo import DEMO_FORCE_LIMIT_N, demo_machine  # noqa: E402
-from drivesense.serve.service import MonitorService  # noqa: E402
-from drivesense.serve.web import create_app  # noqa: E402
+from drivesense.monitor.demo import DEMO_FORCE_LIMIT_N, demo_machine  # noqa: E402
+from drivesense.monitor.service import MonitorService  # noqa: E402
+from drivesense.monitor.web import create_app  # noqa: E402
 from servers import run_until_cuts  # noqa: E402
 
 TOKEN = "test-token-5d1f"
@@ -213,7 +213,7 @@ def test_serve_http_runs_beside_the_service_and_stops_with_clients_connected():
     import time
 
     from drivesense.errors import ConfigError
-    from drivesense.serve.web import serve_http
+    from drivesense.monitor.web import serve_http
 
     svc = MonitorService([demo_machine(speed=1.0, cut_s=3.0)])
     with socket.socket() as s:

@@ -2,7 +2,7 @@
 
 ::
 
-    det = ds.monitor.BreakageDetector(axis="x", teeth=2)
+    det = ds.events.BreakageDetector(axis="x", teeth=2)
     events = det.detect(forces)          # forces: a Recording with force_x [N] (and spindle_speed [rad/s])
     stream = det.stream(fs)              # constant-size state, the same events as detect()
     out = stream.push(chunk)             # Detection(events, statistic, threshold[, held])
@@ -29,6 +29,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
+from drivesense.nc_context import context_at
 from drivesense.recording import Recording
 from drivesense.timebase import check_fs
 
@@ -448,8 +449,10 @@ class DetectorStream:
         self._t0_fixed = True
         n = len(next(iter(arrays.values()))) if arrays else 0
         raw, stat, thr, *held = self.detector.process(self.state, arrays, self.samples_seen)
+        # each event carries the NC's context at its sample (tool, program, block...) where the stream has it
         events = [Event(kind=kind, time_s=self._t0 + index / self.fs, axis=self.detector.axis,
-                        confidence=conf, latency_s=self.latency_s, detector=self.detector.name, evidence=ev)
+                        confidence=conf, latency_s=self.latency_s, detector=self.detector.name,
+                        evidence={**ev, **context_at(arrays, index - self.samples_seen)})
                   for index, kind, conf, ev in raw]
         self.samples_seen += n
         return Detection(events, stat, thr, held[0] if held else None)

@@ -93,7 +93,7 @@ def _error(status: int, message: str, parameter: str | None = None) -> StrictJSO
 
 
 def _static(name: str) -> bytes:
-    return (resources.files("drivesense.serve") / "static" / name).read_bytes()
+    return (resources.files("drivesense.monitor") / "static" / name).read_bytes()
 
 
 def _bearer(request: Request) -> str | None:
@@ -124,7 +124,7 @@ async def _json_body(request: Request) -> dict | StrictJSONResponse:
 
 
 def create_app(service, *, title: str = "drivesense monitor") -> FastAPI:
-    """The dashboard and HTTP API of a :class:`~drivesense.serve.service.MonitorService`.
+    """The dashboard and HTTP API of a :class:`~drivesense.monitor.service.MonitorService`.
 
     Parameters
     ----------

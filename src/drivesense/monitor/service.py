@@ -29,9 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from drivesense.errors import ConfigError, MissingChannelError
-from drivesense.serve.machine import MachineMonitor
-from drivesense.serve.outputs import AlarmPublisher, ArchiveWriter, EventLog, Webhook
-from drivesense.serve.sources import Source
+from drivesense.monitor.machine import MachineMonitor
+from drivesense.monitor.outputs import AlarmPublisher, ArchiveWriter, EventLog, Webhook
+from drivesense.monitor.sources import Source
 
 __all__ = ["MachineSpec", "MonitorService", "Subscriber", "check_machine_id", "machine_id_from", "MACHINE_ID_RULE"]
 
@@ -116,7 +116,7 @@ class MachineSpec:
     tasks : list
         Its source and worker tasks while the service runs.
     claim : object or None
-        A fleet worker's hold on the machine (:class:`~drivesense.serve.fleet.MachineClaim`): its event log,
+        A fleet worker's hold on the machine (:class:`~drivesense.monitor.fleet.MachineClaim`): its event log,
         its mark and the chunks to re-prime on.  None outside a fleet.
     stop : asyncio.Event or None
         Set to stop this machine alone (a fleet worker handing it on).
@@ -201,7 +201,7 @@ class MonitorService:
     queue_chunks : int
         Chunks queued per machine.
     fleet : FleetWorker, optional
-        Share the machines with other workers (:mod:`~drivesense.serve.fleet`): this service watches the ones
+        Share the machines with other workers (:mod:`~drivesense.monitor.fleet`): this service watches the ones
         the fleet gives it, each with its own event log in the fleet's folder; ``events_path`` is unused.
     """
 

@@ -1,6 +1,6 @@
 """Where a monitored machine's drive signals come from: a replayed file, the simulator.
 
-Every source delivers :class:`~drivesense.serve.wire.Chunk` objects of one
+Every source delivers :class:`~drivesense.monitor.wire.Chunk` objects of one
 machine through ``await put(item)``; ``put`` blocks while the machine's queue
 is full, so a source is held back (backpressure) instead of memory growing.
 A message a source cannot read is handed on as the exception itself
@@ -10,8 +10,8 @@ stream goes on.  A source that loses its connection raises from
 source resumes where it was (sequence numbers continue).
 
 The network sources live beside it: edge devices publishing to a broker in
-:mod:`drivesense.serve.mqtt`, controllers (MTConnect agents, OPC UA servers) in
-:mod:`drivesense.serve.controllers`.
+:mod:`drivesense.monitor.mqtt`, controllers (MTConnect agents, OPC UA servers) in
+:mod:`drivesense.monitor.controllers`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 
 from drivesense.errors import ConfigError
 from drivesense.recording import Recording
-from drivesense.serve.wire import Chunk
+from drivesense.monitor.wire import Chunk
 
 __all__ = ["Source", "ReplaySource", "SimulatedSource", "Put", "DEMO_FEED", "demo_condition", "check_speed"]
 

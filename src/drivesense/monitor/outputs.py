@@ -277,7 +277,7 @@ class AlarmPublisher:
     def __init__(self, url: str, *, prefix: str = "", client_id: str = "drivesense-monitor") -> None:
         import paho.mqtt.client as mqtt
 
-        from drivesense.serve.mqtt import parse_mqtt_url
+        from drivesense.monitor.mqtt import parse_mqtt_url
 
         self.host, self.port = parse_mqtt_url(url)
         self.prefix = prefix
@@ -514,7 +514,7 @@ class ArchiveWriter(_Worker):
         Parameters
         ----------
         item : tuple
-            The record and its :class:`~drivesense.serve.machine.Segment` (or None).
+            The record and its :class:`~drivesense.monitor.machine.Segment` (or None).
         """
         record, segment = item
         self.store.add_event({k: v for k, v in record.items() if k != "acknowledged"},

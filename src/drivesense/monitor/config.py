@@ -27,7 +27,8 @@
 
 Sources: ``replay`` (``path``, ``speed``, ``loop``, ``chunk_s``), ``simulated``
 (``seed``, ``speed``, ``cut_s``, ``event_share``), ``mqtt`` (``url``,
-``topic``), ``mtconnect`` and ``opcua`` (:mod:`drivesense.serve.controllers`).
+``topic``), ``mtconnect`` and ``opcua`` (:mod:`drivesense.monitor.controllers`), ``shdr`` (an MTConnect
+adapter read directly: :mod:`drivesense.monitor.shdr`).
 Relative paths are read from the config file's folder.  Every error names
 the machine, the axis and the key.
 """
@@ -43,15 +44,15 @@ from pathlib import Path
 from typing import Any
 
 from drivesense.errors import ConfigError
-from drivesense.serve.machine import AxisPipeline, MachineMonitor
-from drivesense.serve.service import MachineSpec, MonitorService, check_machine_id
-from drivesense.serve.mqtt import MQTTSource
-from drivesense.serve.sources import ReplaySource, SimulatedSource, Source
+from drivesense.monitor.machine import AxisPipeline, MachineMonitor
+from drivesense.monitor.service import MachineSpec, MonitorService, check_machine_id
+from drivesense.monitor.mqtt import MQTTSource
+from drivesense.monitor.sources import ReplaySource, SimulatedSource, Source
 
 __all__ = ["MonitorConfig", "load_config", "build_axis", "fit_or_tare", "parse_http", "SOURCE_KINDS"]
 
 #: Source kinds a config may name.
-SOURCE_KINDS = ("replay", "simulated", "mqtt", "mtconnect", "opcua")
+SOURCE_KINDS = ("replay", "simulated", "mqtt", "mtconnect", "shdr", "opcua")
 _DETECTORS = ("breakage", "chatter", "overload", "teach-in")
 #: Keys each table may hold (a typo is refused, not ignored).
 _KEYS = {"machine": {"id", "teeth", "spindle_rpm", "source", "axis", "history_s"},
@@ -143,7 +144,7 @@ class MonitorConfig:
     alarm_prefix : str
         Topic prefix of the alarms.
     fleet : FleetWorker or None
-        Share the machines with other workers (``--worker``; see :mod:`drivesense.serve.fleet`).
+        Share the machines with other workers (``--worker``; see :mod:`drivesense.monitor.fleet`).
     """
 
     machines: list
@@ -225,7 +226,7 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
         Prefix of error messages (``machine 'vmc1' axis 'x'``).
     teeth : int or None
         Flutes of the tool (``--replay`` without it: read from the trace's estimated forces, see
-        :func:`drivesense.monitor.teeth.resolve_teeth`; a warning says when breakage stays off).
+        :func:`drivesense.events.teeth.resolve_teeth`; a warning says when breakage stays off).
     spindle_rpm : float or None
         Fixed spindle speed [min^-1].
     tare_trace : Recording, optional
@@ -235,8 +236,8 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
     """
     from drivesense.estimate.registry import make_from_files
     from drivesense.io import read_json_file
-    from drivesense.monitor import TeachLimits
-    from drivesense.monitor.pipeline import default_detectors
+    from drivesense.events import TeachLimits
+    from drivesense.events.pipeline import default_detectors, estimate_limits
 
     cli = labels is not None and not labels     # the CLI's options (--replay), checked by the command already
     method = _get(spec, "method", str, where, "vibration", need="a method name")
@@ -276,11 +277,11 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
                                                                               "limits file"))
     force_limit = _number(spec, "force_limit", where)
     baseline = _get(spec, "baseline_revs", int, where, need="an integer >= 3", check=lambda v: v >= 3)
-    band = getattr(getattr(est, "signal", None), "lpf_hz", None)
+    bounds = estimate_limits(est)
     if cli and teeth is None and tare_trace is not None and "breakage" in kinds:
-        teeth = _replay_teeth(tare_trace, est, spindle_rpm, band)
+        teeth = _replay_teeth(tare_trace, est, spindle_rpm, bounds["band_hz"])
     detectors = default_detectors(name, teeth=teeth, spindle_rpm=spindle_rpm, limits=taught,
-                                  force_limit_n=force_limit, band_hz=band, kinds=kinds, baseline_revs=baseline)
+                                  force_limit_n=force_limit, kinds=kinds, baseline_revs=baseline, **bounds)
     if not detectors:
         raise ConfigError(f"{where}: no detector to run: give 'teeth' for breakage, 'force_limit' or 'limits' for "
                           f"overload")
@@ -289,12 +290,12 @@ def build_axis(name: str, spec: dict, *, base: Path, read: Callable, where: str,
 
 def _replay_teeth(trace: Any, est: Any, spindle_rpm: float | None, band: float | None) -> int | None:
     """``--replay`` without ``--teeth`` or a tool in the trace: the count from the trace's estimated forces
-    (:func:`~drivesense.monitor.teeth.resolve_teeth`); a ``UserWarning`` says breakage is off when it stays
+    (:func:`~drivesense.events.teeth.resolve_teeth`); a ``UserWarning`` says breakage is off when it stays
     unknown."""
     import warnings
 
-    from drivesense.monitor.pipeline import detector_inputs
-    from drivesense.monitor.teeth import resolve_teeth
+    from drivesense.events.pipeline import detector_inputs
+    from drivesense.events.teeth import resolve_teeth
 
     choice = resolve_teeth(trace, None, forces=detector_inputs(trace, est.estimate(trace)), spindle_rpm=spindle_rpm,
                            band_hz=band)
@@ -323,11 +324,11 @@ def _source(machine: str, spec: Any, base: Path, read: Callable, where: str) -> 
     if kind == "mqtt":
         return MQTTSource(machine, _get(spec, "url", str, where, need="mqtt://HOST[:PORT]") or "",
                           _get(spec, "topic", str, where, need="a topic"))
-    if kind in ("mtconnect", "opcua"):
-        from drivesense.serve import controllers
+    if kind in ("mtconnect", "shdr", "opcua"):
+        from drivesense.monitor import controllers, shdr
 
         options = {k: v for k, v in spec.items() if k != "kind"}
-        cls = controllers.MTConnectSource if kind == "mtconnect" else controllers.OPCUASource
+        cls = {"mtconnect": controllers.MTConnectSource, "shdr": shdr.SHDRSource, "opcua": controllers.OPCUASource}[kind]
         try:
             return cls(machine, **options)
         except TypeError as exc:
@@ -345,7 +346,7 @@ def _machine(spec: Any, base: Path, read: Callable) -> MachineSpec:
     rpm = _number(spec, "spindle_rpm", where)
     source = _source(mid, spec.get("source"), base, read, where)
     if isinstance(source, SimulatedSource) and not spec.get("axis"):
-        from drivesense.serve.demo import demo_monitor
+        from drivesense.monitor.demo import demo_monitor
 
         return MachineSpec(mid, source, demo_monitor(mid))
     axes = spec.get("axis")

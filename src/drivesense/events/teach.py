@@ -1,10 +1,13 @@
 """Teach-in limits, the industry's standard: bands learnt from good runs of one NC program.
 
-:func:`teach` cuts every good run into bins -- of program time (``align="time"``)
-or of tool path length (``align="path"``: the distance travelled by the
-table-position channels, so a feed-rate override does not shift the bands) --
-and takes per bin and channel the mean magnitude of the signal (force [N],
-spindle power [W]).  The band is the runs' range widened by ``tolerance``
+:func:`teach` cuts every good run into bins -- of program time (``align="time"``),
+of tool path length (``align="path"``: the distance travelled by the
+table-position channels, so a feed-rate override does not shift the bands),
+or per tool and block of the NC program (``align="block"``, from the NC's
+context: the bins of each visit of a block count the path, or the time, from
+where the block began, so a dwell, a skipped block or an override ahead
+cannot shift the bands of the blocks after it) -- and takes per bin and
+channel the mean magnitude of the signal (force [N], spindle power [W]).  The band is the runs' range widened by ``tolerance``
 and a noise floor::
 
     upper = max_runs * (1 + tolerance) + floor,     lower = min_runs * (1 - tolerance) - floor
@@ -27,13 +30,14 @@ import numpy as np
 
 from drivesense.errors import ConfigError, MissingChannelError, SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
-from drivesense.monitor.detector import Detector
+from drivesense.events.detector import Detector
 from drivesense.recording import Recording
 
 __all__ = ["TeachLimits", "teach", "TeachInDetector", "path_length"]
 
-_ALIGN = ("time", "path")
+_ALIGN = ("time", "path", "block")
 _FORMAT = "drivesense teach-in limits 1"
+_FORMAT_BLOCKS = "drivesense teach-in limits 2"     # with the blocks' bins: written only when align="block"
 
 
 def _path_channels(names: Sequence[str]) -> list[str]:
@@ -85,6 +89,14 @@ class TeachLimits:
     feed : ndarray or None
         The runs' mean feed speed per bin [m/s] (when they had ``feed_speed``): a run at another feed
         (an override) has its band widened by the ratio, down for a slower feed, up for a faster one.
+    segments : tuple of (tool, block, visit, first bin, bins), optional
+        ``align="block"``: where each visit of a block (with its tool) has its bins (the k-th time the
+        program entered that block with that tool, k from 0).
+    within : str
+        ``align="block"``: what the bins count from the block's start, ``"path"`` [m] or ``"time"`` [s].
+    override : ndarray or None
+        The runs' mean feed override per bin [-] (when they had ``feed_override``): the NC's ratio, which
+        widens the band as the measured feed does, without waiting for the axes.
     """
 
     channels: tuple
@@ -96,6 +108,14 @@ class TeachLimits:
     runs: int
     force_limit_n: float
     feed: np.ndarray | None = None
+    segments: tuple = ()
+    within: str = "path"
+    override: np.ndarray | None = None
+
+    @property
+    def unit(self) -> str:
+        """Unit of a bin's width: ``"s"`` or ``"m"``."""
+        return "s" if self.align == "time" or (self.align == "block" and self.within == "time") else "m"
 
     @property
     def bins(self) -> int:
@@ -104,12 +124,18 @@ class TeachLimits:
 
     def to_json(self) -> dict:
         """Strict JSON (no NaN): the document ``drivesense teach --out`` writes."""
-        return {"format": _FORMAT, "channels": list(self.channels), "align": self.align,
-                "bin_width": self.bin_width, "bin_unit": "s" if self.align == "time" else "m", "runs": self.runs,
-                "force_limit_n": self.force_limit_n,
-                "feed_m_per_s": None if self.feed is None else self.feed.tolist(),
-                "bands": {c: {"mean": self.mean[c].tolist(), "upper": self.upper[c].tolist(),
-                              "lower": self.lower[c].tolist()} for c in self.channels}}
+        doc = {"format": _FORMAT_BLOCKS if self.align == "block" else _FORMAT, "channels": list(self.channels),
+               "align": self.align, "bin_width": self.bin_width, "bin_unit": self.unit, "runs": self.runs,
+               "force_limit_n": self.force_limit_n,
+               "feed_m_per_s": None if self.feed is None else self.feed.tolist(),
+               "bands": {c: {"mean": self.mean[c].tolist(), "upper": self.upper[c].tolist(),
+                             "lower": self.lower[c].tolist()} for c in self.channels}}
+        if self.align == "block":
+            doc.update({"within": self.within, "feed_override": None if self.override is None else
+                        self.override.tolist(),
+                        "segments": [{"tool": t, "block": b, "visit": v, "first_bin": f, "bins": n}
+                                     for t, b, v, f, n in self.segments]})
+        return doc
 
     @classmethod
     def from_json(cls, doc: Mapping) -> "TeachLimits":
@@ -120,9 +146,9 @@ class TeachLimits:
         doc : mapping
             The parsed LIMITS.json.
         """
-        if not isinstance(doc, Mapping) or doc.get("format") != _FORMAT:
-            raise ConfigError(f"--limits: not a teach-in limits file (its 'format' must be {_FORMAT!r}; "
-                              f"write one with 'drivesense teach')")
+        if not isinstance(doc, Mapping) or doc.get("format") not in (_FORMAT, _FORMAT_BLOCKS):
+            raise ConfigError(f"--limits: not a teach-in limits file (its 'format' must be {_FORMAT!r} or "
+                              f"{_FORMAT_BLOCKS!r}; write one with 'drivesense teach')")
         try:
             channels = tuple(str(c) for c in doc["channels"])
             align = str(doc["align"])
@@ -134,21 +160,83 @@ class TeachLimits:
             limit = check_number(doc["force_limit_n"], "force_limit_n", positive=True)
             feed = doc.get("feed_m_per_s")
             feed = None if feed is None else np.asarray(feed, dtype=float)
+            override = doc.get("feed_override")
+            override = None if override is None else np.asarray(override, dtype=float)
+            segments = tuple((float(g["tool"]), float(g["block"]), int(g["visit"]), int(g["first_bin"]),
+                              int(g["bins"])) for g in doc.get("segments", []))
+            within = str(doc.get("within", "path"))
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"--limits: a field is missing or malformed ({exc})") from None
         if align not in _ALIGN:
-            raise ConfigError(f"--limits: 'align' must be 'time' or 'path', got {align!r}")
+            raise ConfigError(f"--limits: 'align' must be 'time', 'path' or 'block', got {align!r}")
+        if align == "block" and (not segments or within not in ("path", "time")):
+            raise ConfigError("--limits: block-aligned limits need their 'segments' and 'within' (path or time)")
         sizes = {a.size for d in arrays.values() for a in d.values()}
         if len(sizes) != 1 or not all(np.all(np.isfinite(a)) for d in arrays.values() for a in d.values()):
             raise ConfigError("--limits: the bands must be finite and equally long")
         if feed is not None and (feed.shape != next(iter(arrays["mean"].values())).shape
                                  or not np.all(np.isfinite(feed))):
             raise ConfigError("--limits: 'feed_m_per_s' must be finite and as long as the bands")
-        return cls(channels, align, width, arrays["mean"], arrays["upper"], arrays["lower"], runs, limit, feed)
+        return cls(channels, align, width, arrays["mean"], arrays["upper"], arrays["lower"], runs, limit, feed,
+                   segments, within, override)
 
     def dumps(self) -> str:
         """The JSON text (strict)."""
         return json.dumps(self.to_json(), indent=1, allow_nan=False)
+
+
+class _BlockClock:
+    """Where a run is in its NC program, sample by sample, carried across chunks: the tool, block and visit
+    of each sample (the k-th entry into that block with that tool) and the path [m] (or time [s]) since the
+    visit began."""
+
+    def __init__(self, within: str, fs: float) -> None:
+        self.within, self.fs = within, float(fs)
+        self.key: tuple | None = None
+        self.visits: dict = {}
+        self.origin = self.done = 0.0          # position where the visit began; position so far
+        self.last: list | None = None
+        self.samples = 0
+
+    def advance(self, arrays: Mapping[str, np.ndarray]) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+        """(the visits' keys, each sample's index into them, each sample's position in its visit)."""
+        block = np.asarray(arrays["block_number"], dtype=float)
+        n = block.size
+        tool = np.asarray(arrays["tool_number"], dtype=float) if "tool_number" in arrays else np.zeros(n)
+        if self.within == "path":
+            pos = [np.asarray(arrays[c], dtype=float) for c in _path_channels(list(arrays))]
+            s = path_length(pos, self.done, self.last)
+            self.last = [float(p[-1]) for p in pos] if n else self.last
+        else:
+            s = (self.samples + np.arange(n)) / self.fs
+        self.samples += n
+        starts = np.flatnonzero((np.diff(block, prepend=np.nan) != 0) | (np.diff(tool, prepend=np.nan) != 0))
+        keys, which, origin = [], np.zeros(n, dtype=np.int64), np.empty(n)
+        bounds = np.append(starts, n)
+        for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            here = (float(tool[a]), float(block[a]))
+            if j > 0 or self.key is None or here != self.key[:2]:
+                visit = self.visits.get(here, -1) + 1
+                self.visits[here] = visit
+                self.key, self.origin = (*here, visit), float(s[a - 1]) if a > 0 else self.done
+            keys.append(self.key)
+            which[a:b] = j
+            origin[a:b] = self.origin
+        self.done = float(s[-1]) if n else self.done
+        return keys, which, s - origin
+
+
+def _block_index(keys: list[tuple], which: np.ndarray, pos: np.ndarray, width: float,
+                 offsets: Mapping[tuple, tuple[int, int]]) -> np.ndarray:
+    """Flat bin of each sample (-1 where its block visit has no bins, or is past them)."""
+    out = np.full(which.size, -1, dtype=np.int64)
+    local = np.floor(pos / width).astype(np.int64)
+    for j, key in enumerate(keys):
+        if key in offsets:
+            first, count = offsets[key]
+            sel = (which == j) & (local < count)
+            out[sel] = first + local[sel]
+    return out
 
 
 def _bin_index(rec: Recording, align: str, width: float) -> np.ndarray:
@@ -158,8 +246,31 @@ def _bin_index(rec: Recording, align: str, width: float) -> np.ndarray:
     return np.floor(path_length([rec[c] for c in chans]) / width).astype(np.int64)
 
 
+def _block_layout(runs: Sequence[Recording], within: str, width: float):
+    """The visits every run makes with their bins (the fewest any run covers), and each run's sample bins."""
+    clocks = [_BlockClock(within, r.fs).advance({c: r[c] for c in r.channels}) for r in runs]
+    per_run = []
+    for keys, which, pos in clocks:
+        counts = {}
+        for j, key in enumerate(keys):
+            counts[key] = max(counts.get(key, 0), int(np.floor(pos[which == j].max() / width)) if (which == j).any()
+                              else 0)
+        per_run.append(counts)
+    common = [k for k in per_run[0] if all(k in c for c in per_run[1:])]
+    segments, offsets, first = [], {}, 0
+    for key in common:
+        count = min(c[key] for c in per_run)            # the last bin of the shortest visit may be partial
+        if count < 1:
+            continue
+        segments.append((*key, first, count))
+        offsets[key] = (first, count)
+        first += count
+    indices = [_block_index(keys, which, pos, width, offsets) for keys, which, pos in clocks]
+    return tuple(segments), indices, first
+
+
 def _bin_means(values: np.ndarray, index: np.ndarray, bins: int) -> np.ndarray:
-    keep = index < bins
+    keep = (index >= 0) & (index < bins)
     total = np.bincount(index[keep], weights=np.abs(values[keep]), minlength=bins)[:bins]
     count = np.bincount(index[keep], minlength=bins)[:bins]
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
@@ -177,8 +288,9 @@ def teach(runs: Sequence[Recording], channels: Sequence[str] | None = None, *, a
         alignment), each from the program's start.
     channels : sequence of str, optional
         Channels to band (default: every ``force_*`` and ``spindle_power`` channel).
-    align : {"auto", "time", "path"}
-        ``auto``: path when the runs have table positions, else time.
+    align : {"auto", "time", "path", "block"}
+        ``auto``: block when the runs carry the NC's ``block_number``, else path when they have table
+        positions, else time.
     bin_width : float, optional
         Bin width [s] or [m] (default 0.05 s or 0.5 mm).
     tolerance : float
@@ -205,10 +317,15 @@ def teach(runs: Sequence[Recording], channels: Sequence[str] | None = None, *, a
     if len(runs) < 2:
         raise SignalTooShortError(f"teach-in needs at least 2 good runs of the program, got {len(runs)}")
     if align not in ("auto",) + _ALIGN:
-        raise ConfigError(f"--align must be auto, time or path, got {align!r}")
+        raise ConfigError(f"--align must be auto, time, path or block, got {align!r}")
+    has_path = all(_path_channels(r.channels) for r in runs)
     if align == "auto":
-        align = "path" if all(_path_channels(r.channels) for r in runs) else "time"
-    width = bin_width if bin_width is not None else (0.05 if align == "time" else 0.5e-3)
+        align = "block" if all("block_number" in r.channels for r in runs) else "path" if has_path else "time"
+    if align == "block" and not all("block_number" in r.channels for r in runs):
+        raise MissingChannelError("--align block needs the NC's block_number channel in every run")
+    within = "path" if has_path else "time"
+    per_time = align == "time" or (align == "block" and within == "time")
+    width = bin_width if bin_width is not None else (0.05 if per_time else 0.5e-3)
     width = check_number(width, "bin_width", positive=True)
     tolerance = check_number(tolerance, "tolerance", nonneg=True)
     if channels is None:
@@ -216,17 +333,20 @@ def teach(runs: Sequence[Recording], channels: Sequence[str] | None = None, *, a
     channels = tuple(channels)
     if not channels:
         raise MissingChannelError("teach-in: the runs have no force_* or spindle_power channel to band")
-    indices = []
     for k, r in enumerate(runs):
         missing = [c for c in channels if c not in r.channels]
         if missing:
             raise MissingChannelError(f"teach-in run {k + 1} ({r.meta.get('name', 'trace')}) lacks "
                                       f"{', '.join(missing)}")
-        indices.append(_bin_index(r, align, width))
-    bins = int(min(idx.max() for idx in indices))          # the last bin of the shortest run may be partial
+    segments: tuple = ()
+    if align == "block":
+        segments, indices, bins = _block_layout(runs, within, width)
+    else:
+        indices = [_bin_index(r, align, width) for r in runs]
+        bins = int(min(idx.max() for idx in indices))      # the last bin of the shortest run may be partial
     if bins < 4:
         raise SignalTooShortError(f"teach-in: the runs cover only {bins} bin(s) of {width:g} "
-                                  f"{'s' if align == 'time' else 'm'}; use a smaller --bin-width")
+                                  f"{'s' if per_time else 'm'}; use a smaller --bin-width")
     mean, upper, lower = {}, {}, {}
     peak = 0.0
     for c in channels:
@@ -240,11 +360,15 @@ def teach(runs: Sequence[Recording], channels: Sequence[str] | None = None, *, a
         if c.startswith("force_"):
             peak = max(peak, max(float(np.max(np.abs(r[c]))) for r in runs))
     limit = check_number(limit_factor, "limit_factor", positive=True) * max(peak, 1.0)
-    feed = None
+    feed = override = None
     if all("feed_speed" in r.channels for r in runs):
         per_run = np.vstack([_bin_means(r["feed_speed"], idx, bins) for r, idx in zip(runs, indices)])
         feed = np.nanmean(per_run, axis=0)
-    return TeachLimits(channels, align, float(width), mean, upper, lower, len(runs), float(limit), feed)
+    if align == "block" and all("feed_override" in r.channels for r in runs):
+        per_run = np.vstack([_bin_means(r["feed_override"], idx, bins) for r, idx in zip(runs, indices)])
+        override = np.nan_to_num(np.nanmean(per_run, axis=0), nan=1.0)
+    return TeachLimits(channels, align, float(width), mean, upper, lower, len(runs), float(limit), feed,
+                       segments, within, override)
 
 
 class TeachInDetector(Detector):
@@ -266,6 +390,7 @@ class TeachInDetector(Detector):
         if not isinstance(limits, TeachLimits):
             raise ConfigError(f"'limits' must be TeachLimits, got {type(limits).__name__}")
         self.limits = limits
+        self._offsets = {tuple(g[:3]): (g[3], g[4]) for g in limits.segments}
         self.persist_bins = check_int(persist_bins, "persist_bins")
         self.missing_share = check_number(missing_share, "missing_share", positive=True)
         first = limits.channels[0]
@@ -287,7 +412,7 @@ class TeachInDetector(Detector):
         feed = 1e-3
         if self.limits.feed is not None and np.any(self.limits.feed > 0):
             feed = float(np.median(self.limits.feed[self.limits.feed > 0]))
-        per_bin = self.limits.bin_width if self.limits.align == "time" else self.limits.bin_width / feed
+        per_bin = self.limits.bin_width if self.limits.unit == "s" else self.limits.bin_width / feed
         return (self.persist_bins + 1) * per_bin
 
     def new_state(self, fs: float) -> dict:
@@ -299,8 +424,11 @@ class TeachInDetector(Detector):
             Sample rate [Hz].
         """
         k = len(self.limits.channels)
-        return {"fs": float(fs), "bin": 0, "sum": np.zeros(k), "count": 0, "feed": 0.0, "path": 0.0, "last": None,
-                "out": 0, "samples": 0, "latched": False}
+        state = {"fs": float(fs), "bin": 0, "sum": np.zeros(k), "count": 0, "feed": 0.0, "override": 0.0,
+                 "path": 0.0, "last": None, "out": 0, "samples": 0, "latched": False}
+        if self.limits.align == "block":
+            state["clock"] = _BlockClock(self.limits.within, fs)
+        return state
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
         """Events, the first channel's running mean magnitude in its bin, and the bin's upper band.
@@ -316,7 +444,12 @@ class TeachInDetector(Detector):
         """
         lim = self.limits
         n = len(arrays[lim.channels[0]])
-        if lim.align == "time":
+        if lim.align == "block":
+            if "block_number" not in arrays:
+                raise MissingChannelError("teach-in limits taught per block need the NC's block_number channel")
+            keys, which, pos = state["clock"].advance(arrays)
+            idx = _block_index(keys, which, pos, lim.bin_width, self._offsets)
+        elif lim.align == "time":
             idx = np.floor((state["samples"] + np.arange(n)) / state["fs"] / lim.bin_width).astype(np.int64)
         else:
             chans = _path_channels(arrays.keys())
@@ -328,6 +461,8 @@ class TeachInDetector(Detector):
         state["samples"] += n
         values = np.vstack([np.abs(np.asarray(arrays[c], dtype=float)) for c in lim.channels])
         feed = np.abs(np.asarray(arrays["feed_speed"], dtype=float)) if "feed_speed" in arrays else None
+        override = np.asarray(arrays["feed_override"], dtype=float) \
+            if lim.override is not None and "feed_override" in arrays else None
         stat = np.full(n, np.nan)
         thr = np.full(n, np.nan)
         events = []
@@ -346,6 +481,8 @@ class TeachInDetector(Detector):
                 state["count"] += int(b - a)
                 if feed is not None:
                     state["feed"] += float(feed[a:b].sum())
+                if override is not None:
+                    state["override"] += float(override[a:b].sum())
             if b < n:                               # bin state["bin"] is complete at sample b
                 ev = self._close_bin(state, start + int(b))
                 if ev is not None:
@@ -354,6 +491,7 @@ class TeachInDetector(Detector):
                 state["sum"][:] = 0.0
                 state["count"] = 0
                 state["feed"] = 0.0
+                state["override"] = 0.0
         return events, stat, thr
 
     def _close_bin(self, state: dict, index: int):
@@ -363,7 +501,9 @@ class TeachInDetector(Detector):
             return None
         means = state["sum"] / state["count"]
         ratio = 1.0
-        if lim.feed is not None and state["feed"] > 0.0 and lim.feed[b] > 0.0:
+        if lim.override is not None and state["override"] > 0.0 and lim.override[b] > 0.0:
+            ratio = state["override"] / state["count"] / lim.override[b]   # the NC's ratio: no ramp to wait for
+        elif lim.feed is not None and state["feed"] > 0.0 and lim.feed[b] > 0.0:
             ratio = state["feed"] / state["count"] / lim.feed[b]
         worst = None
         for k, c in enumerate(lim.channels):

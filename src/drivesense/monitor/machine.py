@@ -29,11 +29,12 @@ import numpy as np
 
 from drivesense.errors import ConfigError, DriveSenseError, InvalidSignalError
 from drivesense.estimate.base import check_chunk
-from drivesense.monitor.detector import Event
-from drivesense.monitor.overload import OverloadDetector
+from drivesense.events.detector import Event
+from drivesense.events.overload import OverloadDetector
+from drivesense.nc_context import CONTEXT_CHANNELS
 from drivesense.recording import Recording
-from drivesense.serve.streams import FeedSpeedStream, Ring
-from drivesense.serve.wire import Chunk, StreamCursor
+from drivesense.monitor.streams import FeedSpeedStream, Ring
+from drivesense.monitor.wire import Chunk, StreamCursor
 
 __all__ = ["AxisPipeline", "MachineMonitor", "Ring", "FeedSpeedStream", "Segment", "event_id", "event_record"]
 
@@ -323,7 +324,7 @@ class MachineMonitor:
                     for stream in det_streams:
                         stream.shift_time(jump)
         self.cursor.advance(chunk)
-        extra = {c: arrays[c] for c in ("spindle_speed", "spindle_power") if c in arrays}
+        extra = {c: arrays[c] for c in ("spindle_speed", "spindle_power", *CONTEXT_CHANNELS) if c in arrays}
         positions = {c: arrays[c] for c in arrays if c.endswith("_table_position")}
         if positions:
             extra["feed_speed"] = self._feed.push(positions)
@@ -362,7 +363,7 @@ class MachineMonitor:
     def replay_from(self) -> float | None:
         """Earliest time [s] from which replaying the signal rebuilds every detector's state (None: a few seconds do).
 
-        A fleet worker keeps the signal since then for the next worker (see :mod:`~drivesense.serve.fleet`).
+        A fleet worker keeps the signal since then for the next worker (see :mod:`~drivesense.monitor.fleet`).
         """
         times = [t for _, _, det_streams, _ in self._streams for s in det_streams
                  if (t := s.replay_from()) is not None]

@@ -21,7 +21,7 @@ folder.  How they share the machines:
   whose events are logged -- and the machine's events go to ``MACHINE.jsonl``, the same log whichever worker
   watches it; an event id already in it is not logged or announced again.
 * **The stream.**  Each machine has an MQTT 5 session of its own (client id ``drivesense-m-GROUP-MACHINE``;
-  :class:`~drivesense.serve.mqtt.MQTTSource` with ``hold_s``): the broker keeps what arrives while no worker
+  :class:`~drivesense.monitor.mqtt.MQTTSource` with ``hold_s``): the broker keeps what arrives while no worker
   holds it, and chunks are acknowledged only after they are marked and :data:`HOLD_S` of signal later.  The
   next holder gets the unacknowledged chunks again: those up to the mark re-prime its estimators and
   detectors (state only, no events), the rest are processed as usual.
@@ -45,10 +45,10 @@ from pathlib import Path
 from typing import Any
 
 from drivesense.errors import ConfigError
-from drivesense.serve.machine import MachineMonitor
-from drivesense.serve.mqtt import MQTTSource, parse_mqtt_url
-from drivesense.serve.outputs import EventLog
-from drivesense.serve.wire import StreamCursor
+from drivesense.monitor.machine import MachineMonitor
+from drivesense.monitor.mqtt import MQTTSource, parse_mqtt_url
+from drivesense.monitor.outputs import EventLog
+from drivesense.monitor.wire import StreamCursor
 
 __all__ = ["FleetWorker", "Membership", "MachineClaim", "owner_of", "HOLD_S", "KEEPALIVE_S", "TOPIC_PREFIX"]
 

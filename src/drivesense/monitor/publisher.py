@@ -1,4 +1,4 @@
-"""``drivesense publish``: a recording sent to an MQTT broker in the chunk format of :mod:`drivesense.serve.wire`.
+"""``drivesense publish``: a recording sent to an MQTT broker in the chunk format of :mod:`drivesense.monitor.wire`.
 
 What an edge device next to a controller runs (or a test feeding the monitor): the trace is cut into
 chunks, each published with QoS 1 on ``{machine}/drive`` at real time (or faster), sequence numbers and time
@@ -14,9 +14,9 @@ import time
 
 from drivesense.errors import ConfigError
 from drivesense.recording import Recording
-from drivesense.serve.mqtt import parse_mqtt_url
-from drivesense.serve.sources import ReplaySource
-from drivesense.serve.wire import encode_chunk
+from drivesense.monitor.mqtt import parse_mqtt_url
+from drivesense.monitor.sources import ReplaySource
+from drivesense.monitor.wire import encode_chunk
 
 __all__ = ["publish_recording"]
 

@@ -94,7 +94,7 @@ def _feed_kernel(pos: np.ndarray, last: np.ndarray, ring: np.ndarray, state: np.
 class FeedSpeedStream:
     """Tool-path speed [m/s] from table positions, causal: a moving average over the last 50 ms.
 
-    The live counterpart of :func:`drivesense.monitor.pipeline.feed_speed_of` (which centres its window on a
+    The live counterpart of :func:`drivesense.events.pipeline.feed_speed_of` (which centres its window on a
     whole trace): the detectors read it to hold off while the feed changes.  Constant state (a running
     sum over a ring of the window), one compiled pass per chunk.
 

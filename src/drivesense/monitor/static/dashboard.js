@@ -461,12 +461,22 @@
       var a = open[0];
       $("alarm-kind").textContent = a.kind;
       $("alarm-detail").textContent = "machine " + a.machine + ", axis " + a.axis + " \u2014 detected " +
-        clock(a.detected) + " (sample time " + fmt(a.time_s, 3) + " s), confidence " + fmt(100 * a.confidence, 0) + " %";
+        clock(a.detected) + " (sample time " + fmt(a.time_s, 3) + " s), confidence " + fmt(100 * a.confidence, 0) + " %" +
+        (ncContext(a) ? ", " + ncContext(a) : "");
       $("alarm-ack").onclick = function () { acknowledge(a.id); };
       banner.hidden = false;
     } else {
       banner.hidden = true;
     }
+  }
+
+  /* The NC's context at the event (tool, block, program), as the controller reported it; "" without one. */
+  function ncContext(e) {
+    var ev = e.evidence || {}, bits = [];
+    if (ev.tool_number !== undefined && ev.tool_number !== null) bits.push("T" + ev.tool_number);
+    if (ev.block_number !== undefined && ev.block_number !== null) bits.push("N" + ev.block_number);
+    if (ev.program_number !== undefined && ev.program_number !== null) bits.push("prog " + ev.program_number);
+    return bits.join(" \u00b7 ");
   }
 
   function eventRow(e) {
@@ -481,6 +491,7 @@
     tr.appendChild(el("td", "num", fmt(e.time_s, 3)));
     tr.appendChild(el("td", "num", e.confidence === null ? "\u2014" : fmt(100 * e.confidence, 0) + " %"));
     tr.appendChild(el("td", "muted", e.detector));
+    tr.appendChild(el("td", "nc", ncContext(e) || "\u2014"));
     var act = tr.appendChild(el("td", "act"));
     if (e.acknowledged) {
       act.appendChild(el("span", "acked-mark", "\u2713 acknowledged"));

@@ -3,7 +3,7 @@
 A fixed cadence (calibrate every ``base`` cuts, as the second paper's Table 1 does) spends its
 calibration cuts evenly over a life whose interesting part is the end: the accelerating flank-wear
 stage and the chips that end carbide lives. :func:`propose_interval` reads the tracked series of the
-force per depth ``F_ref = K_tc h_ref + K_te`` and of ``K_tc`` (:class:`~drivesense.monitor.wear.WearState`)
+force per depth ``F_ref = K_tc h_ref + K_te`` and of ``K_tc`` (:class:`~drivesense.condition.wear.WearState`)
 and proposes the cut distance to the next calibration:
 
 * **trend**: from the last calibrations, the slope ``b`` and (from four points on) the curvature
@@ -20,7 +20,7 @@ and proposes the cut distance to the next calibration:
 
 The cutting-power signal carries no per-tooth pattern (it is a mean over revolutions), so a change
 of the per-tooth force pattern cannot be followed from it; a force or vibration channel with
-spindle-angle resolution would be needed (:mod:`drivesense.monitor.runout` gives its order 1).
+spindle-angle resolution would be needed (:mod:`drivesense.condition.runout` gives its order 1).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError
-from drivesense.monitor.wear import check_settings
+from drivesense.condition.wear import check_settings
 
 __all__ = ["CadenceSettings", "CadenceProposal", "propose_interval", "propose_from_states", "AdaptiveCadence"]
 
@@ -201,8 +201,8 @@ def propose_from_states(states, base: float, settings: CadenceSettings | None = 
     Parameters
     ----------
     states : sequence of WearState
-        :attr:`WearTracker.history <drivesense.monitor.wear.WearTracker.history>` or
-        :attr:`WearReport.states <drivesense.monitor.wear.WearReport.states>`.
+        :attr:`WearTracker.history <drivesense.condition.wear.WearTracker.history>` or
+        :attr:`WearReport.states <drivesense.condition.wear.WearReport.states>`.
     base : float
         The fixed cadence's interval [m].
     settings : CadenceSettings, optional
@@ -243,7 +243,7 @@ class AdaptiveCadence:
 
     def __init__(self, base: float, settings: CadenceSettings | None = None, tracker_settings=None,
                  cut_length: float | None = None) -> None:
-        from drivesense.monitor.wear import WearTracker
+        from drivesense.condition.wear import WearTracker
 
         self.base = float(base)
         self.cut_length = None if cut_length is None else float(cut_length)

@@ -21,15 +21,17 @@ import numpy as np
 import scipy.ndimage
 
 from drivesense.errors import ConfigError
-from drivesense.monitor.breakage import BreakageDetector
-from drivesense.monitor.chatter import ChatterDetector
-from drivesense.monitor.detector import Detector, Event, attach_latency
-from drivesense.monitor.overload import OverloadDetector
-from drivesense.monitor.teach import TeachInDetector, TeachLimits
-from drivesense.monitor.teeth import TeethChoice, resolve_teeth
+from drivesense.events.breakage import BreakageDetector
+from drivesense.events.chatter import ChatterDetector
+from drivesense.events.detector import Detector, Event, attach_latency
+from drivesense.events.overload import OverloadDetector
+from drivesense.events.teach import TeachInDetector, TeachLimits
+from drivesense.events.teeth import TeethChoice, resolve_teeth
+from drivesense.nc_context import CONTEXT_CHANNELS
 from drivesense.recording import Recording
 
-__all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "run_detectors", "DetectionReport",
+__all__ = ["detector_inputs", "feed_speed_of", "default_detectors", "estimate_limits", "run_detectors",
+           "DetectionReport",
            "tool_teeth", "detect_in_trace", "TraceDetection", "check_detector_settings", "CLI_OPTION_NAMES"]
 
 #: What notes call a detector's events.
@@ -130,7 +132,7 @@ def detector_inputs(trace: Recording, forces: Recording) -> Recording:
                           f"forces estimated from this trace")
     channels = {c: forces[c] for c in forces.channels}
     for c in trace.channels:
-        if c in ("spindle_speed", "spindle_power") or c.endswith("_table_position"):
+        if c in ("spindle_speed", "spindle_power") or c.endswith("_table_position") or c in CONTEXT_CHANNELS:
             channels[c] = trace[c]
     feed = feed_speed_of(trace)
     if feed is not None:
@@ -144,7 +146,7 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
                       limits: TeachLimits | None = None, force_limit_n: float | None = None,
                       band_hz: float | None = None,
                       kinds: Sequence[str] = ("breakage", "chatter", "overload", "teach-in"),
-                      baseline_revs: int | None = None) -> list[Detector]:
+                      baseline_revs: int | None = None, drive_modes_hz: Sequence[float] = ()) -> list[Detector]:
     """The detectors ``drivesense detect`` runs on one axis.
 
     Parameters
@@ -165,6 +167,9 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
         Which detectors to consider.
     baseline_revs : int, optional
         Revolutions of each cut the breakage detector learns its baseline over (default: its own).
+    drive_modes_hz : sequence of float
+        The feed drive's own mode frequencies [Hz] (:func:`estimate_limits`): a feed change rings them, and
+        a line there is not chatter.
     """
     out: list[Detector] = []
     if "breakage" in kinds and teeth is not None:
@@ -172,7 +177,7 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
         if baseline_revs is not None:
             out[-1].baseline_revs = int(baseline_revs)
     if "chatter" in kinds:
-        out.append(ChatterDetector(axis, spindle_rpm=spindle_rpm,
+        out.append(ChatterDetector(axis, spindle_rpm=spindle_rpm, exclude_hz=tuple(drive_modes_hz),
                                    highest_hz=None if band_hz is None else 0.8 * band_hz))
     limit = force_limit_n if force_limit_n is not None else (limits.force_limit_n if limits is not None else None)
     if "overload" in kinds and limit is not None:
@@ -206,6 +211,23 @@ class DetectionReport:
     statistics: dict = field(default_factory=dict)
     detectors: list = field(default_factory=list)
     held: dict = field(default_factory=dict)
+
+
+def estimate_limits(estimator) -> dict:
+    """What the detectors must know of a force estimate, as keywords of :func:`default_detectors` and
+    :func:`detect_in_trace`: its bandwidth (``band_hz``, the estimator's low-pass: chatter is looked for below
+    it) and the feed drive's own mode frequencies (``drive_modes_hz``: a ball-screw axis's natural
+    frequency, which a feed-override ramp rings; a spectral line there is the drive, not chatter).
+
+    Parameters
+    ----------
+    estimator : estimator
+        Any of the registry's (those without a low-pass or an axis model give None and ``()``).
+    """
+    band = getattr(getattr(estimator, "signal", None), "lpf_hz", None)
+    mode = getattr(getattr(estimator, "axis", None), "natural_frequency_hz", None)
+    modes = (float(mode),) if isinstance(mode, (int, float)) and math.isfinite(mode) and mode > 0 else ()
+    return {"band_hz": band, "drive_modes_hz": modes}
 
 
 def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bool = True) -> DetectionReport:
@@ -244,7 +266,7 @@ def tool_teeth(trace: Recording, teeth: int | None, *, forces: Recording | None 
                spindle_rpm: float | None = None, band_hz: float | None = None) -> int | None:
     """``teeth`` if given, else the flutes of the trace's tool, else the count read from its spectrum.
 
-    The count of :func:`~drivesense.monitor.teeth.resolve_teeth` (None when it stays unknown; its
+    The count of :func:`~drivesense.events.teeth.resolve_teeth` (None when it stays unknown; its
     ``TeethChoice`` says why).
 
     Parameters
@@ -306,11 +328,12 @@ class TraceDetection:
 
 def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | None = None, teeth: int | None = None,
                     spindle_rpm: float | None = None, limits: TeachLimits | None = None,
-                    force_limit_n: float | None = None, baseline_revs: int | None = None) -> TraceDetection:
+                    force_limit_n: float | None = None, baseline_revs: int | None = None,
+                    drive_modes_hz: Sequence[float] = ()) -> TraceDetection:
     """Run the default detectors on every estimated force of a trace (``drivesense detect``'s rule).
 
     The teeth come from ``teeth``, the trace's tool or the spectrum of the forces and drive signals
-    (:func:`~drivesense.monitor.teeth.resolve_teeth`); without them breakage and chipping are off and a
+    (:func:`~drivesense.events.teeth.resolve_teeth`); without them breakage and chipping are off and a
     note says so.  The spindle speed comes from ``spindle_rpm`` or the median of the trace's
     ``spindle_speed`` (it sets the latency the detectors declare); the taught limits serve the first axis.
     A detector the trace's sample rate or the estimate's bandwidth rules out (chatter on a 50 Hz trace) is
@@ -324,9 +347,9 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
         :func:`detector_inputs` of the trace and its estimated forces.
     band_hz : float, optional
         The estimate's bandwidth [Hz].
-    teeth, spindle_rpm, limits, force_limit_n, baseline_revs
+    teeth, spindle_rpm, limits, force_limit_n, baseline_revs, drive_modes_hz
         As in :func:`default_detectors` (``--teeth``, ``--spindle-rpm``, ``--limits``, ``--force-limit``,
-        ``--baseline-revs``).
+        ``--baseline-revs``; :func:`estimate_limits` gives ``band_hz`` and ``drive_modes_hz``).
 
     Raises
     ------
@@ -347,7 +370,8 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
     detectors: list[Detector] = []
     for ax in axes:
         detectors += default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=limits if ax == axes[0] else None,
-                                       force_limit_n=limit, band_hz=band_hz, baseline_revs=baseline_revs)
+                                       force_limit_n=limit, band_hz=band_hz, baseline_revs=baseline_revs,
+                                       drive_modes_hz=drive_modes_hz)
     for det in [d for d in detectors if d.unusable(inputs.fs, rpm)]:
         detectors.remove(det)
         note = f"{_LABELS.get(det.name, det.name)} detection is off: {det.unusable(inputs.fs, rpm)}"

@@ -22,7 +22,7 @@ import urllib.request
 import numpy as np
 import pytest
 
-from drivesense.serve import MachineSpec, MonitorService, MQTTSource, encode_chunk
+from drivesense.monitor import MachineSpec, MonitorService, MQTTSource, encode_chunk
 
 pytest.importorskip("paho.mqtt.client") if os.environ.get("CI") != "true" else None
 import paho.mqtt.client as mqtt  # noqa: E402
@@ -98,7 +98,7 @@ def _subscribe_session(port: int, client_id: str, topic: str) -> None:
 
 
 def _cuts():
-    from drivesense.serve.sources import SimulatedSource
+    from drivesense.monitor.sources import SimulatedSource
     from drivesense.sim.process_events import ProcessEvent, simulate_event_cut
     from drivesense.sim.scenarios import ScenarioSettings
     from dataclasses import replace
@@ -106,7 +106,7 @@ def _cuts():
     src = SimulatedSource("m", cut_s=4.0)
     clean, broken = src.simulate_cut(0), src.simulate_cut(1)
     settings = replace(ScenarioSettings(), duration=4.0, t_contact=0.8)
-    from drivesense.serve.sources import demo_condition
+    from drivesense.monitor.sources import demo_condition
 
     collision = simulate_event_cut(demo_condition(), settings=settings, seed=77,
                                    events=(ProcessEvent("collision", 2.0, force_n=800.0, rise_s=5e-4, hold_s=0.2),))
@@ -125,7 +125,7 @@ def _publish(client, rec, *, seq0: int, t_offset: float, n: int = 500) -> int:
 
 
 def test_alarms_and_stop_requests_survive_garbage_and_a_broker_restart(mosquitto):
-    from drivesense.serve.demo import demo_monitor
+    from drivesense.monitor.demo import demo_monitor
 
     clean, broken, collision = _cuts()
     source = MQTTSource("m", mosquitto.url)
@@ -196,8 +196,8 @@ def test_alarms_and_stop_requests_survive_garbage_and_a_broker_restart(mosquitto
 def test_a_stopping_service_processes_every_chunk_the_broker_handed_over(mosquitto):
     """Stopped while the broker floods it: the chunks paho has acknowledged are processed before the service
     ends, the others stay in its session for the next run; none is lost in between."""
-    from drivesense.serve.demo import demo_monitor
-    from drivesense.serve.wire import decode_chunk
+    from drivesense.monitor.demo import demo_monitor
+    from drivesense.monitor.wire import decode_chunk
 
     clean, broken, _ = _cuts()
     handed: list[int] = []
@@ -259,7 +259,7 @@ def test_config_with_an_mqtt_source_fed_by_drivesense_publish(mosquitto, tmp_pat
 
     from drivesense.cli import app
     from drivesense.io import write_recording
-    from drivesense.serve.sources import demo_condition
+    from drivesense.monitor.sources import demo_condition
     from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
     _, broken, _ = _cuts()

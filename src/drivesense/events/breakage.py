@@ -37,7 +37,8 @@ from numba import njit
 
 from drivesense.errors import SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
-from drivesense.monitor.detector import Detector, feed_steady, spindle_speed_of
+from drivesense.events.detector import Detector, spindle_speed_of
+from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["BreakageDetector"]
 
@@ -485,7 +486,7 @@ class BreakageDetector(Detector):
         raw = np.ascontiguousarray(force)
         w_median = _median(omega)
         force = self._highpass(state, force, w_median)
-        feed_ok = feed_steady(arrays, state)
+        feed_ok = process_steady(arrays, state)
         if "feed_speed" not in arrays and self.teeth > 1:
             moving = np.zeros(n)       # a drop of all force without a feed signal may be a retract: not judged
         else:
@@ -514,7 +515,7 @@ class BreakageDetector(Detector):
             over = d / t if t > 0 else 1.0
             confidence = min(1.0, 0.5 + 0.5 * (over - 1.0)) if tooth >= 0 else min(1.0, 0.5 + loss / 2)
             evidence = {"edge_loss": float(round(loss, 4)), "statistic": float(d), "threshold": float(t),
-                        "force_scale": float(scale)}
+                        "force_scale": float(scale), "guards": guard_source(state)}
             if tooth >= 0:
                 evidence["tooth_angle_deg"] = float(round(tooth, 1))   # where the damaged tooth's sector starts
             else:

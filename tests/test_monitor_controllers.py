@@ -21,8 +21,9 @@ import numpy as np
 import pytest
 
 from drivesense.errors import ConfigError
-from drivesense.serve.controllers import MTConnectSource, OPCUASource
-from drivesense.serve.wire import Chunk
+from drivesense.nc_context import program_code
+from drivesense.monitor.controllers import MTConnectSource, OPCUASource
+from drivesense.monitor.wire import Chunk
 
 DATA = Path(__file__).parent / "data" / "mtconnect"
 NS = "urn:mtconnect.org:MTConnectStreams:1.3"
@@ -217,9 +218,9 @@ def test_mtconnect_source_streams_restarts_and_recovers(live_agent):
     asyncio.run(main())
     assert not [e for e in got if isinstance(e, Exception)]
     chunks = [c for c in got if isinstance(c, Chunk)]
-    arrays = _check_stream(chunks, set(SI), 100.0)
+    arrays = _check_stream(chunks, set(SI) | {"block_number"}, 100.0)
     info = src.describe()
-    assert info["channels"] == sorted(SI) and info["restarts"] == 3 and info["lost"] > 500
+    assert info["channels"] == sorted([*SI, "block_number"]) and info["restarts"] == 3 and info["lost"] > 500
     assert info["samples"] == arrays["x_current"].size and info["chunks"] == len(chunks)
     t = (src._start_us - BASE_US) * 1e-6 + np.arange(arrays["x_current"].size) / 100.0
     # the ramps are linear: interpolation across restarts and lost stretches is exact
@@ -230,6 +231,12 @@ def test_mtconnect_source_streams_restarts_and_recovers(live_agent):
     assert served.sum() > 300 and (~served).sum() > 200      # the burst's lost stretch
     np.testing.assert_allclose(arrays["x_current"][served], SI["x_current"](t[served]), atol=1e-12)
     assert chunks[-1].t0 + chunks[-1].n / 100.0 < (agent.clock * STEP_US) * 1e-6   # never ahead of the agent
+    # the NC's context by default: the path's LINE event as block_number, held between reports (not
+    # interpolated): before the first restart, the line reported every 100 ms, i.e. floor(10 t)
+    block = arrays["block_number"]
+    assert np.array_equal(block, np.round(block))
+    first = slice(0, 50)
+    np.testing.assert_array_equal(block[first], np.floor(t[first] * 10.0 + 1e-9))
 
 
 def test_mtconnect_source_channel_mapping_and_hold(live_agent):
@@ -394,3 +401,102 @@ def test_opcua_source_refuses_bad_configs():
         OPCUASource("m1", "opc.tcp://h:4840", {"temperature": "ns=2;s=T"}, fs=100.0)
     with pytest.raises(ConfigError, match="fs"):
         OPCUASource("m1", "opc.tcp://h:4840", {"x_current": "ns=2;s=X"}, fs=-1)
+
+
+def test_opcua_source_codes_the_nc_context():
+    """A controller's execution state by name (or a LocalizedText), its feed override in percent, a program name."""
+    src = OPCUASource("m1", "opc.tcp://127.0.0.1:4840", {"execution": "ns=2;s=E", "feed_override": "ns=2;s=F",
+                                                          "program_number": "ns=2;s=P"},
+                      fs=100.0, units={"feed_override": "%"})
+    src._by_node = {"ns=2;s=E": "execution", "ns=2;s=F": "feed_override", "ns=2;s=P": "program_number"}
+    src.notify("ns=2;s=E", "FEED_HOLD")
+    src.notify("ns=2;s=E", type("LocalizedText", (), {"Text": "ACTIVE"})())
+    src.notify("ns=2;s=F", 80.0)
+    src.notify("ns=2;s=P", "PART_A.MPF")
+    src.notify("ns=2;s=E", "RUNNING")                  # not a state: counted as bad, the last value holds
+    values = {c: [v for _, v in pts] for c, pts in src._points.items()}
+    assert values["execution"] == [3.0, 1.0] and values["feed_override"] == [0.8]
+    assert values["program_number"] == [program_code("PART_A.MPF")] and src.bad == 1
+
+
+# ---------------------------------------------------------------------- SHDR (an adapter, no agent)
+class Adapter:
+    """An MTConnect adapter on loopback: X current [A], the path's execution state, line and feed override [%]
+    every 10 ms of its clock; answers ``* PING`` with ``* PONG``."""
+
+    def __init__(self) -> None:
+        self.k, self.pings, self.server, self.writers = 0, 0, None, []
+
+    def line(self) -> bytes:
+        t = BASE_US + self.k * STEP_US
+        state = "FEED_HOLD" if 120 <= self.k < 150 else "ACTIVE"
+        text = (f"{_iso(t)}|Xamp|{2.0 + 0.001 * self.k!r}|exec|{state}|line|{10 + self.k // 50}"
+                f"|Fovr|{100 if self.k < 200 else 80}|spare|1.5\n")
+        self.k += 1
+        return text.encode()
+
+    async def handle(self, reader, writer):
+        self.writers.append(writer)
+
+        async def answer():
+            while line := await reader.readline():
+                if line.strip() == b"* PING":
+                    self.pings += 1
+                    writer.write(b"* PONG 10000\n")
+        task = asyncio.create_task(answer())
+        try:
+            while True:
+                writer.write(b"".join(self.line() for _ in range(3)))   # 30 ms of the adapter's clock
+                await writer.drain()
+                await asyncio.sleep(0.01)
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            task.cancel()
+
+
+def test_shdr_source_reads_an_adapter_with_the_nc_context():
+    from drivesense.monitor.shdr import SHDRSource
+
+    port = _free_port()
+    got: list = []
+    adapter = Adapter()
+
+    async def main():
+        server = await asyncio.start_server(adapter.handle, "127.0.0.1", port)
+        src = SHDRSource("m1", f"shdr://127.0.0.1:{port}", fs=100.0, interval_s=0.05,
+                         channels={"Xamp": "x_current", "exec": "execution", "line": "block_number",
+                                   "Fovr": "feed_override"}, units={"feed_override": "%"})
+        stop = asyncio.Event()
+
+        async def put(item):
+            got.append(item)
+            if sum(c.n for c in got if isinstance(c, Chunk)) >= 300:
+                stop.set()
+
+        await asyncio.wait_for(src.run(put, stop), 30)
+        server.close()
+        return src
+
+    src = asyncio.run(main())
+    arrays = _check_stream([c for c in got if isinstance(c, Chunk)], {"x_current", "execution", "block_number",
+                                                                       "feed_override"}, 100.0)
+    k = np.round((arrays["x_current"] - 2.0) * 1000).astype(int)       # the adapter's report counter
+    np.testing.assert_allclose(arrays["x_current"], 2.0 + 0.001 * k, atol=1e-9)
+    np.testing.assert_array_equal(arrays["block_number"], 10 + k // 50)          # held, never interpolated
+    np.testing.assert_array_equal(arrays["execution"], np.where((k >= 120) & (k < 150), 3.0, 1.0))
+    np.testing.assert_allclose(arrays["feed_override"], np.where(k < 200, 1.0, 0.8))
+    info = src.describe()
+    assert info["kind"] == "shdr" and info["connects"] == 1 and info["bad_lines"] == 0 and "spare" in info["ignored"]
+    assert adapter.pings >= 1
+
+
+def test_shdr_source_refuses_bad_configs():
+    from drivesense.monitor.shdr import SHDRSource
+
+    with pytest.raises(ConfigError, match="shdr://host:port"):
+        SHDRSource("m1", "http://h:7878", fs=100.0, channels={"a": "x_current"})
+    with pytest.raises(ConfigError, match="needs 'channels'"):
+        SHDRSource("m1", "shdr://h:7878", fs=100.0, channels={})
+    with pytest.raises(ConfigError, match="expects a current unit|current"):
+        SHDRSource("m1", "shdr://h:7878", fs=100.0, channels={"a": "x_current"}, units={"x_current": "mm"})
