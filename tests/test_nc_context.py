@@ -131,3 +131,18 @@ def test_teach_in_per_block_is_not_shifted_by_a_dwell_and_streams_as_it_detects(
     chunked = [e for a in range(0, weak.n_samples, 137)
                for e in stream.push({c: weak[c][a:a + 137] for c in weak.channels}).events]
     assert [(e.kind, e.time_s) for e in chunked] == [(e.kind, e.time_s) for e in events]
+
+
+def test_bench_events_scores_false_alarms_with_and_without_the_context():
+    from drivesense.bench.events import score_programs
+
+    chatter = {"kind": "chatter", "detector": "chatter", "time_s": 5.0, "chatter_frequency_hz": 790.0}
+    rows = [{"duration_s": 1800.0, "cutting_s": 1500.0, "overrides": [[4.7, 0.5]], "exit_length_mm": None,
+             "teach_in": True, "teeth": 2, "spindle_rpm": 6000.0, "seed": k, "run": 3, "detected": [chatter],
+             "detected_by_context": {"none": [chatter], "nc": [chatter] if k == 0 else [], "nc_in_cut": []}}
+            for k in range(2)]
+    out = score_programs(rows)
+    assert out["false_alarms_per_10_h"] == 10.0 and out["by_context"]["none"]["false_alarms"] == 2
+    assert out["by_context"]["nc"]["false_alarms_per_10_h"] == 5.0
+    assert out["by_context"]["nc_in_cut"]["false_alarms"] == 0
+    assert out["examples"][0]["chatter_frequency_hz"] == 790.0 and out["examples"][0]["overrides"] == [[4.7, 0.5]]
