@@ -142,7 +142,7 @@ def test_bench_events_scores_false_alarms_with_and_without_the_context():
              "detected_by_context": {"none": [chatter], "nc": [chatter] if k == 0 else [], "nc_in_cut": []}}
             for k in range(2)]
     out = score_programs(rows)
-    assert out["false_alarms_per_10_h"] == 10.0 and out["by_context"]["none"]["false_alarms"] == 2
-    assert out["by_context"]["nc"]["false_alarms_per_10_h"] == 5.0
+    assert out["false_alarms_per_10_h"] == 20.0 and out["by_context"]["none"]["false_alarms"] == 2   # 2 in 1 h
+    assert out["by_context"]["nc"]["false_alarms_per_10_h"] == 10.0
     assert out["by_context"]["nc_in_cut"]["false_alarms"] == 0
     assert out["examples"][0]["chatter_frequency_hz"] == 790.0 and out["examples"][0]["overrides"] == [[4.7, 0.5]]
