@@ -398,7 +398,7 @@ class ChatterDetector(Detector):
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
         feed_ok = process_steady(arrays, state)
-        unsteady = np.flatnonzero(feed_ok < 0.5)
+        unsteady = np.flatnonzero(state["changes_ok"] < 0.5)
         if unsteady.size:                        # the last sample of a feed change or a commanded change
             state["last_unsteady"] = start + int(unsteady[-1])
         stat = np.empty(n)

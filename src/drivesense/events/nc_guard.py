@@ -80,6 +80,7 @@ def nc_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
         age = since + 1 + np.arange(n)
         state["nc_since"] = since + n
     ok[age < settle] = 0.0
+    state["nc_changes_ok"] = ok.copy()            # the commanded changes alone (no state, no in-cut flag)
     if "execution" in chunk:
         ok[np.asarray(chunk["execution"], dtype=float) != ACTIVE] = 0.0
     if "in_cut" in chunk:
@@ -100,13 +101,18 @@ def process_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
     Returns
     -------
     ndarray
-        1.0 where the detector may judge, 0.0 where it holds.
+        1.0 where the detector may judge, 0.0 where it holds.  ``state["changes_ok"]`` is 0.0 only for the
+        hold after a commanded change the NC reported (block, tool, program, an override): a chatter
+        spectrum must not span one.  Not the measured feed, which chatter itself shakes, nor a cut's start.
     """
     feed = feed_steady(chunk, state)
     if has_context(chunk):
         state["guards"] = "nc_context"
-        return feed * nc_steady(chunk, state)
+        ok = feed * nc_steady(chunk, state)
+        state["changes_ok"] = state["nc_changes_ok"]
+        return ok
     state["guards"] = "feed_speed" if "feed_speed" in chunk else "none"
+    state["changes_ok"] = np.ones(feed.size)
     return feed
 
 
