@@ -66,7 +66,9 @@ def nc_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
         if name not in chunk:
             continue
         values = np.asarray(chunk[name], dtype=float)
-        before = last.get(name, values[0])
+        before = last.setdefault(name, float(values[0]))
+        if values[-1] == before and values[0] == before and (values == before).all():
+            continue                        # held throughout, as mostly: one comparison
         changed[0] |= values[0] != before
         changed[1:] |= values[1:] != values[:-1]
         last[name] = float(values[-1])
@@ -76,10 +78,10 @@ def nc_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
         latest = np.maximum.accumulate(np.where(changed, np.arange(n), -1))
         age = np.where(latest >= 0, np.arange(n) - latest, since + 1 + np.arange(n))
         state["nc_since"] = int(n - 1 - idx[-1])
-    else:
-        age = since + 1 + np.arange(n)
+        ok[age < settle] = 0.0
+    else:                                   # no change here: only the end of an earlier one's hold
+        ok[:max(0, settle - since - 1)] = 0.0
         state["nc_since"] = since + n
-    ok[age < settle] = 0.0
     state["nc_changes_ok"] = ok.copy()            # the commanded changes alone (no state, no in-cut flag)
     if "execution" in chunk:
         ok[np.asarray(chunk["execution"], dtype=float) != ACTIVE] = 0.0
