@@ -76,8 +76,8 @@ class TeachLimits:
     ----------
     channels : tuple of str
         Channels the bands are for (``force_x`` [N], ``spindle_power`` [W] ...).
-    align : {"time", "path"}
-        Bins of program time [s] or of tool-path length [m].
+    align : {"time", "path", "block"}
+        Bins of program time [s], of tool-path length [m], or per tool and block (:attr:`segments`).
     bin_width : float
         Width of a bin [s] or [m].
     mean, upper, lower : dict of str to ndarray
@@ -174,9 +174,12 @@ class TeachLimits:
         sizes = {a.size for d in arrays.values() for a in d.values()}
         if len(sizes) != 1 or not all(np.all(np.isfinite(a)) for d in arrays.values() for a in d.values()):
             raise ConfigError("--limits: the bands must be finite and equally long")
-        if feed is not None and (feed.shape != next(iter(arrays["mean"].values())).shape
-                                 or not np.all(np.isfinite(feed))):
-            raise ConfigError("--limits: 'feed_m_per_s' must be finite and as long as the bands")
+        shape = next(iter(arrays["mean"].values())).shape
+        for name, extra in (("feed_m_per_s", feed), ("feed_override", override)):
+            if extra is not None and (extra.shape != shape or not np.all(np.isfinite(extra))):
+                raise ConfigError(f"--limits: {name!r} must be finite and as long as the bands")
+        if segments and sum(g[4] for g in segments) != shape[0]:
+            raise ConfigError("--limits: the segments' bins do not add up to the bands' length")
         return cls(channels, align, width, arrays["mean"], arrays["upper"], arrays["lower"], runs, limit, feed,
                    segments, within, override)
 
