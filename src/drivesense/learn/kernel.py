@@ -325,7 +325,9 @@ def _make_kernel(HID: int, NIN: int):
         for t0 in range(0, n, BLOCK):
             m = min(BLOCK, n - t0)
             for k in range(layers):
-                # the input part of the block's gates: no dependence between samples, the loops stream
+                # the input part of the block's gates: no dependence between samples, the loops stream (two
+                # loops, the first layer's and the others', so that each sweeps a constant width: one loop
+                # with the width chosen per layer measured 5-10 % slower)
                 if k == 0:
                     for i in range(m):
                         for j in range(NIN):
