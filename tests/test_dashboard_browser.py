@@ -257,6 +257,9 @@ def test_dashboard_shows_live_force_and_the_breakage_within_a_second(live):
         assert latency <= MAX_LATENCY_S, f"breakage shown {latency:.3f} s after its sample was due"
         assert "sev-red" in (row.get_attribute("class") or "")
         assert row.get_attribute("data-id") == brk["id"]
+        # the NC's context at the event, as the simulated controller reported it: tool 1, the feed block N20
+        assert brk["evidence"]["tool_number"] == 1 and brk["evidence"]["block_number"] == 20
+        assert row.query_selector("td.nc").text_content() == "T1 \u00b7 N20"
         assert not page.is_hidden("#alarm") and "breakage" in page.text_content("#alarm-kind").lower()
         badge = "#machine-demo .badge"                   # the machine's badge turns red with its card
         page.wait_for_function(f"document.querySelector('{badge}').textContent === 'alarm'", timeout=5000)

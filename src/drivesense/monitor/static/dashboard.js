@@ -470,12 +470,11 @@
     }
   }
 
-  /* The NC's context at the event (tool, block, program), as the controller reported it; "" without one. */
+  /* The NC's context at the event (tool and block), as the controller reported it; "" without one. */
   function ncContext(e) {
     var ev = e.evidence || {}, bits = [];
     if (ev.tool_number !== undefined && ev.tool_number !== null) bits.push("T" + ev.tool_number);
     if (ev.block_number !== undefined && ev.block_number !== null) bits.push("N" + ev.block_number);
-    if (ev.program_number !== undefined && ev.program_number !== null) bits.push("prog " + ev.program_number);
     return bits.join(" \u00b7 ");
   }
 
