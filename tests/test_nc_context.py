@@ -32,6 +32,8 @@ def test_execution_states_and_program_names_code_stably():
     code = program_code("PART_A.MPF")
     assert code == program_code(" PART_A.MPF ") and code != program_code("PART_B.MPF")
     assert 2**20 <= code < 2**24 and float(np.float32(code)) == code       # exact wherever it travels
+    with pytest.raises(InvalidSignalError, match="channel 'program_number': an empty cell is no program"):
+        program_code("  ")
     assert context_value("feed_override", "0.8") == 0.8
     with pytest.raises(InvalidSignalError, match="channel 'tool_number': 'T5' is not a number"):
         context_value("tool_number", "T5")
@@ -146,3 +148,24 @@ def test_bench_events_scores_false_alarms_with_and_without_the_context():
     assert out["by_context"]["nc"]["false_alarms_per_10_h"] == 10.0
     assert out["by_context"]["nc_in_cut"]["false_alarms"] == 0
     assert out["examples"][0]["chatter_frequency_hz"] == 790.0 and out["examples"][0]["overrides"] == [[4.7, 0.5]]
+
+
+def test_a_csv_export_carries_the_context_as_text_percent_and_counts(tmp_path):
+    from drivesense.io.csv import read_csv
+
+    path = tmp_path / "trace.csv"
+    path.write_text("time [s],x_current [A],execution,program_number,block_number,feed_override [%],tool_number\n"
+                    "0.000,0.1,READY,PART_A.MPF,10,100,3\n"
+                    "0.0011,0.2,ACTIVE,PART_A.MPF,10,100,3\n"
+                    "0.0019,0.3,ACTIVE,PART_A.MPF,20,80,3\n"
+                    "0.0030,0.4,FEED_HOLD,PART_A.MPF,20,80,3\n")
+    rec = read_csv(path, resample=1000.0)              # irregular stamps: resampled, the context held
+    np.testing.assert_allclose(rec["x_current"], [0.1, 0.1 + 0.1 / 1.1, 0.3 + 0.1 * 0.1 / 1.1, 0.4])
+    np.testing.assert_array_equal(rec["block_number"], [10, 10, 20, 20])        # not 10.5 anywhere
+    np.testing.assert_array_equal(rec["execution"], [0, 1, 1, 3])
+    np.testing.assert_allclose(rec["feed_override"], [1.0, 1.0, 0.8, 0.8])
+    assert np.all(rec["program_number"] == program_code("PART_A.MPF")) and np.all(rec["tool_number"] == 3)
+    assert "the NC's context held" in " ".join(rec.meta["provenance"])
+    path.write_text("time [s],x_current [A],execution\n0.000,0.1,ACTIVE\n0.001,0.2,RUNNING\n")
+    with pytest.raises(InvalidSignalError, match="line 3, column 'execution': channel 'execution': unknown state"):
+        read_csv(path)

@@ -114,6 +114,11 @@ def program_code(program) -> float:
     -------
     float
 
+    Raises
+    ------
+    InvalidSignalError
+        For an empty name or a number that is not finite.
+
     Examples
     --------
     >>> program_code(4711), program_code("4711"), program_code("PART_A.MPF") == program_code("PART_A.MPF")
@@ -121,6 +126,9 @@ def program_code(program) -> float:
     """
     if isinstance(program, str):
         text = program.strip()
+        if not text:
+            raise InvalidSignalError("channel 'program_number': an empty cell is no program (leave the column "
+                                     "out, or repeat the program's name on every row)")
         try:
             value = float(text)
         except ValueError:
