@@ -162,7 +162,7 @@ def test_a_csv_export_carries_the_context_as_text_percent_and_counts(tmp_path):
     rec = read_csv(path, resample=1000.0)              # irregular stamps: resampled, the context held
     np.testing.assert_allclose(rec["x_current"], [0.1, 0.1 + 0.1 / 1.1, 0.3 + 0.1 * 0.1 / 1.1, 0.4])
     np.testing.assert_array_equal(rec["block_number"], [10, 10, 20, 20])        # not 10.5 anywhere
-    np.testing.assert_array_equal(rec["execution"], [0, 1, 1, 3])
+    np.testing.assert_array_equal(rec["execution"], [0, 0, 1, 3])                # READY until 1.1 ms
     np.testing.assert_allclose(rec["feed_override"], [1.0, 1.0, 0.8, 0.8])
     assert np.all(rec["program_number"] == program_code("PART_A.MPF")) and np.all(rec["tool_number"] == 3)
     assert "the NC's context held" in " ".join(rec.meta["provenance"])
