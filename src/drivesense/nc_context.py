@@ -34,7 +34,7 @@ import zlib
 
 from drivesense.errors import InvalidSignalError
 
-__all__ = ["CONTEXT_CHANNELS", "CHANGE_CHANNELS", "COUNT_CHANNELS", "EXECUTION_STATES", "ACTIVE", "execution_code", "program_code",
+__all__ = ["CONTEXT_CHANNELS", "CHANGE_CHANNELS", "COUNT_CHANNELS", "NAMED_CHANNELS", "EXECUTION_STATES", "ACTIVE", "execution_code", "program_code",
            "context_value", "has_context", "context_at"]
 
 #: The context channels, in a fixed order.
@@ -47,6 +47,9 @@ CHANGE_CHANNELS = ("tool_number", "program_number", "block_number", "feed_overri
 #: Context channels whose values are counts or codes: a file column of them needs no unit (the overrides do:
 #: a ratio or a percentage).
 COUNT_CHANNELS = ("tool_number", "program_number", "block_number", "execution", "in_cut")
+
+#: Context channels whose values may come as names (a state, a program), coded by :func:`context_value`.
+NAMED_CHANNELS = ("execution", "program_number")
 
 #: MTConnect's ``Execution`` values; a state's code is its index.
 EXECUTION_STATES = ("READY", "ACTIVE", "INTERRUPTED", "FEED_HOLD", "STOPPED", "OPTIONAL_STOP", "PROGRAM_STOPPED",

@@ -128,11 +128,12 @@ def resample_uniform(time: ArrayLike, channels: dict, fs: float, *, name: str = 
         raise TimebaseError(f"{name}: the stamps span {t[-1] - t[0]:.6g} s, less than two samples at "
                             f"--resample {fs:g} Hz")
     grid = t[0] + np.arange(n) / fs
-    last = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)     # the stamp at or before
-    out = {k: np.asarray(v, dtype=np.float64)[last] if k in CONTEXT_CHANNELS
+    held = sorted(k for k in channels if k in CONTEXT_CHANNELS)
+    if held:
+        last = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.size - 1)     # the stamp at or before
+    out = {k: np.asarray(v, dtype=np.float64)[last] if k in held
            else np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in channels.items()}
     d = np.diff(t)
-    held = sorted(k for k in channels if k in CONTEXT_CHANNELS)
     note = (f"resampled explicitly (--resample) from {t.size} stamps (median step {float(np.median(d)):.6g} s, "
             f"steps {float(d.min()):.6g}..{float(d.max()):.6g} s) to a uniform grid at fs={fs:.12g} Hz, "
             f"{n} samples, by linear interpolation" + (f"; the NC's context held from the stamp before "

@@ -398,8 +398,9 @@ class ChatterDetector(Detector):
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
         feed_ok = process_steady(arrays, state)
-        unsteady = np.flatnonzero(state["changes_ok"] < 0.5)
-        if unsteady.size:                        # the last sample of a feed change or a commanded change
+        hold = state.get("nc_hold")              # the hold after the NC's commanded changes (None: no context)
+        unsteady = np.flatnonzero(hold < 0.5) if hold is not None else ()
+        if len(unsteady):                        # the last sample of a commanded change's hold
             state["last_unsteady"] = start + int(unsteady[-1])
         stat = np.empty(n)
         thr = np.empty(n)

@@ -82,7 +82,7 @@ def nc_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
     else:                                   # no change here: only the end of an earlier one's hold
         ok[:max(0, settle - since - 1)] = 0.0
         state["nc_since"] = since + n
-    state["nc_changes_ok"] = ok.copy()            # the commanded changes alone (no state, no in-cut flag)
+    state["nc_hold"] = ok.copy()            # the commanded changes alone (no state, no in-cut flag)
     if "execution" in chunk:
         ok[np.asarray(chunk["execution"], dtype=float) != ACTIVE] = 0.0
     if "in_cut" in chunk:
@@ -103,18 +103,17 @@ def process_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
     Returns
     -------
     ndarray
-        1.0 where the detector may judge, 0.0 where it holds.  ``state["changes_ok"]`` is 0.0 only for the
-        hold after a commanded change the NC reported (block, tool, program, an override): a chatter
-        spectrum must not span one.  Not the measured feed, which chatter itself shakes, nor a cut's start.
+        1.0 where the detector may judge, 0.0 where it holds.  With the NC's context, ``state["nc_hold"]``
+        is 0.0 only for the hold after a commanded change the NC reported (block, tool, program, an
+        override): a chatter spectrum must not span one.  Not the measured feed, which chatter itself
+        shakes, nor a cut's start.  Without context it is absent.
     """
     feed = feed_steady(chunk, state)
     if has_context(chunk):
         state["guards"] = "nc_context"
-        ok = feed * nc_steady(chunk, state)
-        state["changes_ok"] = state["nc_changes_ok"]
-        return ok
+        return feed * nc_steady(chunk, state)
     state["guards"] = "feed_speed" if "feed_speed" in chunk else "none"
-    state["changes_ok"] = np.ones(feed.size)
+    state.pop("nc_hold", None)
     return feed
 
 

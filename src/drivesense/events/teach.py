@@ -252,13 +252,9 @@ def _bin_index(rec: Recording, align: str, width: float) -> np.ndarray:
 def _block_layout(runs: Sequence[Recording], within: str, width: float):
     """The visits every run makes with their bins (the fewest any run covers), and each run's sample bins."""
     clocks = [_BlockClock(within, r.fs).advance({c: r[c] for c in r.channels}) for r in runs]
-    per_run = []
-    for keys, which, pos in clocks:
-        counts = {}
-        for j, key in enumerate(keys):
-            counts[key] = max(counts.get(key, 0), int(np.floor(pos[which == j].max() / width)) if (which == j).any()
-                              else 0)
-        per_run.append(counts)
+    # a whole run: each visit is one stretch of samples and its own key (the visit count tells repeats apart)
+    per_run = [{key: int(np.floor(pos[which == j].max() / width)) for j, key in enumerate(keys)}
+               for keys, which, pos in clocks]
     common = [k for k in per_run[0] if all(k in c for c in per_run[1:])]
     segments, offsets, first = [], {}, 0
     for key in common:

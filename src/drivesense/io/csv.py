@@ -45,7 +45,7 @@ import numpy as np
 from .. import units as _units
 from ..errors import ConfigError, InvalidSignalError, TimebaseError, UnitError
 from ..metadata import meta_to_json
-from ..nc_context import COUNT_CHANNELS, context_value
+from ..nc_context import COUNT_CHANNELS, NAMED_CHANNELS, context_value
 from .column_map import ColumnMap
 from .plausibility import PlausibilityLimits, check_channels, check_policy, enforce_policy, repaired_meta
 
@@ -377,7 +377,7 @@ def read_csv(path: str | Path, *, axis: str = "x", mapping: Mapping[str, str] | 
 
     # --- data
     usecols = [c[0] for c in columns] if column_map is not None else None
-    coded = {c[0]: c[1] for c in columns if c[1] in ("execution", "program_number")}
+    coded = {c[0]: c[1] for c in columns if c[1] in NAMED_CHANNELS}
     values = _parse_values(path, header_lineno, header, delim, usecols, coded)
     if values.size == 0:
         raise InvalidSignalError(f"{path.name}: no data rows after the header "
