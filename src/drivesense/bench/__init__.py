@@ -36,13 +36,12 @@ def run_bench(kind: str = "all", *, axis=None, signal=None, progress=None) -> di
         Called with a label after each step.
     """
     from drivesense.errors import ConfigError
-    from drivesense.estimate import SignalParams
-    from drivesense.machine.presets import table1_axis
+    from drivesense.machine.presets import table1_axis, table1_signal
 
     if kind not in (*BENCH_KINDS, "all"):
         raise ConfigError(f"unknown bench {kind!r}; choose {', '.join(BENCH_KINDS)} or all")
     axis = axis or table1_axis()
-    signal = signal or SignalParams()
+    signal = signal or table1_signal()
     out: dict = {"machine": machine_info(), "physics": "full simulator physics (see drivesense.sim.scenarios)"}
     if kind in ("accuracy", "all"):
         rows, _ = run_accuracy(axis, signal, progress=progress)

@@ -17,9 +17,9 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import maximum_filter1d
 
-from drivesense.estimate import SignalParams, make
+from drivesense.estimate import make
 from drivesense.machine.milling import CuttingCoefficients, EndMill, engagement_angles
-from drivesense.machine.presets import table1_axis
+from drivesense.machine.presets import table1_axis, table1_signal
 from drivesense.machine.stability import critical_depth
 from drivesense.machine.tool_dynamics import ToolDynamics
 from drivesense.events.pipeline import default_detectors, detector_inputs, estimate_limits, run_detectors
@@ -233,7 +233,7 @@ def bench_estimator(feed_speed: float, duration: float):
     """
     cond = CutCondition("idle", "feed", 1.5e-3, 4000.0, feed_speed=feed_speed)
     settings = replace(ScenarioSettings(), duration=1.6 * duration)
-    est = make("vibration", axis=table1_axis(), signal=SignalParams())
+    est = make("vibration", axis=table1_axis(), signal=table1_signal())
     est.fit(simulate_idle(cond, settings, seed=5000))
     return est
 

@@ -29,13 +29,12 @@ def demo(
 ) -> None:
     """Simulate the Table 1 stage, run idling and the 10 end-milling conditions, score every estimator."""
     from drivesense.bench import machine_info, run_condition, summarise
-    from drivesense.estimate import SignalParams
     from drivesense.estimate.design import lowpass_sos
-    from drivesense.machine.presets import table1_axis
+    from drivesense.machine.presets import table1_axis, table1_signal
     from drivesense.plot import plot_estimates, plot_friction_maps, save_figure
     from drivesense.sim.scenarios import paper_conditions
 
-    axis, signal = table1_axis(), SignalParams()
+    axis, signal = table1_axis(), table1_signal()
     out.mkdir(parents=True, exist_ok=True)
     rows, figures = [], []
     conditions = paper_conditions()
@@ -420,7 +419,6 @@ def _real_nc_bench(folder: Path, columns, calibration, air, vertical, carries, h
     from drivesense.bench.machine import machine_info
     from drivesense.bench.nc_real import run_real_nc_bench
     from drivesense.cli.identify_nc import parse_carries
-
     from drivesense.errors import ConfigError
 
     if hybrid not in (0, 1, 2):
@@ -491,13 +489,12 @@ def axis_cmd(
 ) -> None:
     """Write an AXIS.toml from a preset, to edit for your own machine."""
     from drivesense.errors import ConfigError
-    from drivesense.estimate import SignalParams
     from drivesense.io.axis_file import write_axis_file
-    from drivesense.machine.presets import table1_axis
+    from drivesense.machine.presets import table1_axis, table1_signal
 
     if preset != "table1":
         raise ConfigError(f"unknown preset {preset!r} (known: table1)")
-    write_axis_file(out, table1_axis(), SignalParams())
+    write_axis_file(out, table1_axis(), table1_signal())
     console.print(f"wrote {out}", markup=False)
 
 

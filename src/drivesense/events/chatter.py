@@ -7,7 +7,7 @@ tooth-pass frequency's and the spindle's -- and, to first order, a pattern
 that drifts slowly (an entry, wear).  Chatter vibrates at a frequency near a
 tool mode that is no such harmonic and passes the comb.  After a band-pass
 (``highpass_hz`` to ``highest_hz``) the detector compares the comb's RMS over
-``window_revs`` (less the noise floor it learnt in air) with the RMS of the
+``window_revs`` (whole tooth passes; less the noise floor it learnt in air) with the RMS of the
 repeating part ``(F(t) + F(t - T) + F(t - 2T)) / 3`` (the forced response)::
 
     r = sqrt((ms(e_bp) - noise) / 6) / rms(forced)
@@ -19,8 +19,16 @@ threshold for ``hold_revs`` revolutions, after ``settle_revs`` of cutting at a
 steady feed (``feed_speed``) and a forced level that moved by < 15 % over
 them.  It becomes an event when the last ~0.4 s of force hold a spectral line
 of its own between the spindle harmonics (``prominence`` times their median),
-found again at the same frequency ``recheck_s`` later (the line of a transient
-moves or goes); that line's frequency is the chatter frequency reported.
+found again at the same frequency a revolution (``recheck_revs``, at least
+``recheck_s``) later (the line of a transient moves or goes); that line's
+frequency is the chatter frequency reported.
+
+The drive's own lines are no chatter: a measuring error that repeats every
+``p`` of the axis's travel (the motor encoder's signal period, ``pitches_m``)
+is a line at ``|v| / p`` in a force estimate, and a feed override moves it into
+the chatter band.  Where the axis speed is known, the share of the comb's power
+in those lines (and their tooth-pass sidebands) is taken off the statistic,
+and a spectral line there confirms nothing (:func:`drive_lines`).
 """
 
 from __future__ import annotations
@@ -33,7 +41,7 @@ import scipy.signal
 from numba import njit
 
 from drivesense.errors import ConfigError, SignalTooShortError
-from drivesense.machine.milling import check_number
+from drivesense.machine.milling import check_int, check_number
 from drivesense.events.detector import Detector, spindle_speed_of
 from drivesense.events.nc_guard import guard_source, process_steady
 
@@ -43,6 +51,9 @@ _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
  _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT) = range(24)
+#: A forced level that rose by more than this share over ``settle_revs`` is an abrupt change of engagement
+#: (an entry fills in more slowly); a fall by more than 15 % is the tool leaving the part.
+_RISE_LIMIT = 0.6
 #: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
 GUARDS = {1: "settling (a cut's start, a feed or spindle-speed change)",
           2: "forced level changing (an exit, an abrupt engagement change)",
@@ -78,8 +89,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc,
-                  ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, rise_limit, feed_ok,
+                  sc, ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
     """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
     chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
     n = force.size - off
@@ -178,7 +189,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
                 # a falling level is the tool leaving the part; a rising one is judged only when abrupt
                 # (an entry fills in steadily, and chatter often starts on the way in)
                 ratio = rf / levels[old_k]
-                sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else (ratio - 1.0) / 4.0
+                sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else 0.15 * (ratio - 1.0) / rise_limit
         if sc[_LEVEL] > 0.15:
             _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
@@ -208,8 +219,64 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
     return n
 
 
+def drive_lines(speeds: np.ndarray, pitches, tooth_hz: float | None, pad_hz: float) -> list[tuple[float, float]]:
+    """Frequency bands [Hz] where the drive's position-periodic error puts lines: ``k |v| / p``.
+
+    A measuring error that repeats every ``p`` of travel (the motor encoder's
+    signal period) is a line at ``|v| / p`` and its second harmonic in the force
+    estimate; the cut's tooth passes modulate it, so the lines one tooth-pass
+    frequency to either side count too.  An override moves them through the
+    chatter band.
+
+    Parameters
+    ----------
+    speeds : ndarray
+        The axis speeds over the spectrum's window (its parts) [m/s]; their range sets the bands' width.
+    pitches : sequence of float
+        The error's periods of travel [m].
+    tooth_hz : float, optional
+        Tooth-pass frequency [Hz] (None: the sidebands are not known).
+    pad_hz : float
+        Added to either side of every band [Hz] (the spectrum's resolution).
+    """
+    if not len(pitches) or speeds.size == 0:
+        return []
+    lo, hi = float(np.min(np.abs(speeds))), float(np.max(np.abs(speeds)))
+    shifts = (0.0,) if not tooth_hz else (-tooth_hz, 0.0, tooth_hz)
+    bands = []
+    for p in pitches:
+        for k in (1, 2):
+            for m in shifts:
+                a, b = k * lo / p + m, k * hi / p + m
+                if b < 0.0:
+                    a, b = -b, -a
+                elif a < 0.0:
+                    a, b = 0.0, max(-a, b)
+                bands.append((a - pad_hz, b + pad_hz))
+    return bands
+
+
+def drive_share(fring: np.ndarray, head: int, fs: float, bands, length: int) -> float:
+    """The share [-] of the comb output's power (its last ``length`` samples) that lies within ``bands`` [Hz].
+
+    The drive's position-periodic lines (:func:`drive_lines`) pass the comb like chatter does; the
+    statistic is judged without them.
+    """
+    if not bands:
+        return 0.0
+    cap = fring.size
+    x = fring[(head - length + np.arange(length)) % cap]
+    power = np.abs(np.fft.rfft(x * np.hanning(length))) ** 2
+    freq = np.fft.rfftfreq(length, 1.0 / fs)
+    inside = np.zeros(freq.size, dtype=bool)
+    for a, b in bands:
+        inside |= (freq >= a) & (freq <= b)
+    total = float(power.sum())
+    return float(power[inside].sum() / total) if total > 0 else 0.0
+
+
 def _spectral_check(ring: np.ndarray, head: int, fs: float, omega: float, lowest_hz: float, highest_hz: float,
-                    length: int, prominence: float, exclude=()) -> tuple[bool, float, float]:
+                    length: int, prominence: float, exclude=(), bands=()) -> tuple[bool, float, float]:
     """Is there a narrow peak between the spindle harmonics?  (ok, its frequency [Hz], its prominence [-]).
 
     The last ``length`` force samples, Hann-windowed: the largest spectral line
@@ -218,7 +285,7 @@ def _spectral_check(ring: np.ndarray, head: int, fs: float, omega: float, lowest
     A drifting pattern (an exit, a feed ramp) leaves sidebands next to the
     harmonics; chatter is a line of its own.  Lines within 10 % of ``exclude``
     (the feed drive's own modes, which ring in the estimate after a force
-    step) do not count.
+    step) do not count, nor lines within ``bands`` (:func:`drive_lines`).
     """
     cap = ring.size
     x = ring[(head - length + np.arange(length)) % cap]
@@ -231,6 +298,8 @@ def _spectral_check(ring: np.ndarray, head: int, fs: float, omega: float, lowest
     keep = (freq >= lowest_hz) & (freq <= highest_hz) & (dist > max(3.0 * df, 0.1 * f_rev))
     for f_mode in exclude:                     # the drive's own modes ring after any force step
         keep &= np.abs(freq - f_mode) > 0.1 * f_mode
+    for a, b in bands:                         # the drive's position-periodic error, moved by the feed
+        keep &= (freq < a) | (freq > b)
     if np.count_nonzero(keep) < 8:
         return False, 0.0, 0.0
     lines = spec[keep]
@@ -255,7 +324,7 @@ class ChatterDetector(Detector):
         How long ``r`` must stay above the threshold (> 2 so that a step of the force does not alarm)
         [revolutions].
     window_revs : float
-        Averaging time of the RMS values [revolutions].
+        Averaging time of the RMS values [revolutions], at least (:attr:`window`).
     highpass_hz : float
         Corner of the high-pass on the comb output [Hz] (below the chatter band, above the estimator's
         slow errors).
@@ -274,7 +343,16 @@ class ChatterDetector(Detector):
         Top of the chatter band [Hz]: set it below the estimator's low-pass, above which its force is
         not to be trusted (default 0.45 fs).
     recheck_s : float
-        The spectral line must be found again, at the same frequency, this much later [s].
+        The spectral line must be found again, at the same frequency, at least this much later [s].
+    recheck_revs : float
+        ... and at least this many spindle revolutions later [revolutions].
+    pitches_m : sequence of float
+        Travel over which the drive's measuring error repeats [m] (the motor encoder's signal period,
+        :meth:`~drivesense.machine.signal_chain.SignalParams.drive_pitches`): a line where the axis speed
+        (its ``{axis}_table_position``, else ``feed_speed``) puts that error is not chatter
+        (:func:`drive_lines`).
+    teeth : int, optional
+        Teeth of the tool: the tooth passes' sidebands of those lines are not chatter either.
     """
 
     name = "chatter"
@@ -284,7 +362,9 @@ class ChatterDetector(Detector):
     def __init__(self, axis: str = "x", *, spindle_rpm: float | None = None, threshold: float = 0.05,
                  hold_revs: float = 2.6, window_revs: float = 0.5, highpass_hz: float = 150.0, gate_n: float = 2.0,
                  min_rpm: float = 500.0, settle_revs: float = 10.0, prominence: float = 8.0,
-                 exclude_hz=(), highest_hz: float | None = None, recheck_s: float = 0.05) -> None:
+                 exclude_hz=(), highest_hz: float | None = None, recheck_s: float = 0.02,
+                 recheck_revs: float = 1.0, pitches_m=(),
+                 teeth: int | None = None) -> None:
         self._axis = str(axis)
         self.spindle_rpm = None if spindle_rpm is None else check_number(spindle_rpm, "spindle_rpm", positive=True)
         self.threshold = check_number(threshold, "threshold", positive=True)
@@ -298,8 +378,30 @@ class ChatterDetector(Detector):
             raise ConfigError(f"'settle_revs' must be within 1-60 revolutions, got {settle_revs!r}")
         self.prominence = check_number(prominence, "prominence", positive=True)
         self.recheck_s = check_number(recheck_s, "recheck_s", positive=True)
+        self.recheck_revs = check_number(recheck_revs, "recheck_revs", nonneg=True)
         self.exclude_hz = tuple(check_number(f, "exclude_hz", positive=True) for f in exclude_hz)
         self.highest_hz = None if highest_hz is None else check_number(highest_hz, "highest_hz", positive=True)
+        self.pitches_m = tuple(check_number(p, "pitches_m", positive=True) for p in pitches_m)
+        self.teeth = None if teeth is None else check_int(teeth, "teeth")
+
+    def recheck(self, omega: float) -> float:
+        """How much later the spectral line must be found again [s]: ``recheck_s`` or ``recheck_revs`` spindle
+        revolutions, the longer.
+
+        Parameters
+        ----------
+        omega : float
+            Spindle speed [rad/s].
+        """
+        return max(self.recheck_s, self.recheck_revs * _TWO_PI / omega if omega > 0 else 0.0)
+
+    @property
+    def window(self) -> float:
+        """The RMS values' averaging time [revolutions]: ``window_revs`` rounded up to whole tooth passes (one
+        revolution when the teeth are not known), so that a tool cutting only part of each revolution does not
+        drop the statistic below the threshold between its teeth."""
+        z = self.teeth or 1
+        return math.ceil(self.window_revs * z - 1e-9) / z
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -358,7 +460,7 @@ class ChatterDetector(Detector):
             Sample rate [Hz].
         """
         rpm = self.spindle_rpm or self.min_rpm
-        return (self.hold_revs + self.window_revs) * 60.0 / rpm + self.recheck_s
+        return (self.hold_revs + self.window) * 60.0 / rpm + self.recheck(rpm * _TWO_PI / 60.0)
 
     def new_state(self, fs: float) -> dict:
         """Delay line of one revolution at ``min_rpm``, filter states, RMS values (constant size).
@@ -411,24 +513,31 @@ class ChatterDetector(Detector):
         events = []
         sc = state["sc"]
         fs = state["fs"]
+        drive = self._drive(arrays)
         pos = 0
         while pos < n:
             done = pos + _chatter_loop(force, omega, fs, state["sos"], state["lp"], self.gate_n, self.threshold,
-                                       self.hold_revs, self.window_revs, self.settle_revs, feed_ok, sc, state["ring"],
+                                       self.hold_revs, self.window, self.settle_revs,
+                                       _RISE_LIMIT, feed_ok, sc, state["ring"],
                                        state["fring"], state["levels"], stat, thr, held, pos, start, cand)
             if done < n or cand[0] > 0.0:
                 if cand[0] > 0.0:
+                    bands = self._drive_bands(state, drive, done, cand[2])
+                    # the statistic without the drive's lines: what is left must still be above the threshold
+                    share = drive_share(state["fring"], int(sc[_FHEAD]), fs, bands, _FREQ_RING // 2)
                     ok, freq, prom = _spectral_check(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
                                                      self.highest(fs),
                                                      self.spectrum_samples(fs), self.prominence,
-                                                     self.exclude_hz)
+                                                     self.exclude_hz, bands)
+                    ok = ok and cand[0] * math.sqrt(max(1.0 - share, 0.0)) > self.threshold
                     here = start + done - 1
                     # a spectrum over a feed change (an override's ramp) holds its sidebands: no confirmation
                     # until the window has left the change
                     ok = ok and here - self.spectrum_samples(fs) >= state.get("last_unsteady", -1)
                     pending = state.get("pending")
                     df = fs / self.spectrum_samples(fs)
-                    if ok and pending is not None and here - pending[1] <= 4 * self.recheck_s * fs \
+                    recheck = self.recheck(cand[2]) * fs
+                    if ok and pending is not None and here - pending[1] <= 4 * recheck \
                             and abs(freq - pending[0]) <= 3 * df:
                         # the same line a moment later: chatter (a transient's line moves or goes)
                         sc[_LATCH] = 1.0
@@ -440,11 +549,40 @@ class ChatterDetector(Detector):
                     elif ok:
                         state["pending"] = (freq, here)
                         delay = _TWO_PI / cand[2] * fs
-                        sc[_HOLD] = max(self.hold_revs * delay - self.recheck_s * fs, 0.0)
+                        sc[_HOLD] = max(self.hold_revs * delay - recheck, 0.0)
                     else:
                         state["pending"] = None
                         _unconfirmed(sc, held, start, done)
                         sc[_HOLD] = 0.0
                     cand[:] = 0.0
             pos = done
+        if drive is not None:
+            keep = self.spectrum_samples(fs) + 1
+            state["drive"] = (drive[0], np.concatenate([state.get("drive", (None, np.zeros(0)))[1], drive[1]])[-keep:])
         return events, stat, thr, held
+
+    def _drive(self, arrays: Mapping[str, np.ndarray]) -> tuple[str, np.ndarray] | None:
+        """What gives the axis speed: (``position`` [m] or ``speed`` [m/s], the chunk's values), or None."""
+        if not self.pitches_m:
+            return None
+        for kind, name in (("position", f"{self._axis}_table_position"), ("speed", "feed_speed")):
+            if name in arrays:
+                return kind, np.asarray(arrays[name], dtype=float)
+        return None
+
+    def _drive_bands(self, state: dict, drive, upto: int, omega: float) -> list[tuple[float, float]]:
+        """:func:`drive_lines` for the spectrum window that ends at the chunk's sample ``upto - 1``."""
+        if drive is None:
+            return []
+        fs = state["fs"]
+        length = self.spectrum_samples(fs)
+        kind, values = drive
+        past = state.get("drive", (kind, np.zeros(0)))[1]
+        x = np.concatenate([past, values[:upto]])[-(length + 1):]
+        parts = np.array_split(np.arange(x.size), 4)
+        if kind == "position":       # the mean speed over each quarter of the window
+            speeds = np.array([(x[p[-1]] - x[p[0]]) * fs / max(p[-1] - p[0], 1) for p in parts if p.size > 1])
+        else:
+            speeds = np.array([x[p].mean() for p in parts if p.size])
+        tooth_hz = None if self.teeth is None else self.teeth * omega / _TWO_PI
+        return drive_lines(speeds, self.pitches_m, tooth_hz, 3.0 * fs / length)

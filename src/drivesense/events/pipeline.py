@@ -146,7 +146,8 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
                       limits: TeachLimits | None = None, force_limit_n: float | None = None,
                       band_hz: float | None = None,
                       kinds: Sequence[str] = ("breakage", "chatter", "overload", "teach-in"),
-                      baseline_revs: int | None = None, drive_modes_hz: Sequence[float] = ()) -> list[Detector]:
+                      baseline_revs: int | None = None, drive_modes_hz: Sequence[float] = (),
+                      drive_pitches_m: Sequence[float] = ()) -> list[Detector]:
     """The detectors ``drivesense detect`` runs on one axis.
 
     Parameters
@@ -170,6 +171,9 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
     drive_modes_hz : sequence of float
         The feed drive's own mode frequencies [Hz] (:func:`estimate_limits`): a feed change rings them, and
         a line there is not chatter.
+    drive_pitches_m : sequence of float
+        Travel over which the drive's measuring error repeats [m] (:func:`estimate_limits`): the lines the
+        feed moves it to are not chatter.
     """
     out: list[Detector] = []
     if "breakage" in kinds and teeth is not None:
@@ -178,7 +182,8 @@ def default_detectors(axis: str, *, teeth: int | None = None, spindle_rpm: float
             out[-1].baseline_revs = int(baseline_revs)
     if "chatter" in kinds:
         out.append(ChatterDetector(axis, spindle_rpm=spindle_rpm, exclude_hz=tuple(drive_modes_hz),
-                                   highest_hz=None if band_hz is None else 0.8 * band_hz))
+                                   highest_hz=None if band_hz is None else 0.8 * band_hz,
+                                   pitches_m=tuple(drive_pitches_m), teeth=teeth))
     limit = force_limit_n if force_limit_n is not None else (limits.force_limit_n if limits is not None else None)
     if "overload" in kinds and limit is not None:
         out.append(OverloadDetector(axis, limit))
@@ -217,7 +222,9 @@ def estimate_limits(estimator) -> dict:
     """What the detectors must know of a force estimate, as keywords of :func:`default_detectors` and
     :func:`detect_in_trace`: its bandwidth (``band_hz``, the estimator's low-pass: chatter is looked for below
     it) and the feed drive's own mode frequencies (``drive_modes_hz``: a ball-screw axis's natural
-    frequency, which a feed-override ramp rings; a spectral line there is the drive, not chatter).
+    frequency, which a feed-override ramp rings; a spectral line there is the drive, not chatter) and the
+    travel over which its measuring error repeats (``drive_pitches_m``: the motor encoder's signal period,
+    where the axis file gives ``encoder_signal_periods``).
 
     Parameters
     ----------
@@ -227,7 +234,11 @@ def estimate_limits(estimator) -> dict:
     band = getattr(getattr(estimator, "signal", None), "lpf_hz", None)
     mode = getattr(getattr(estimator, "axis", None), "natural_frequency_hz", None)
     modes = (float(mode),) if isinstance(mode, (int, float)) and math.isfinite(mode) and mode > 0 else ()
-    return {"band_hz": band, "drive_modes_hz": modes}
+    axis, signal = getattr(estimator, "axis", None), getattr(estimator, "signal", None)
+    lead = getattr(axis, "lead", None)
+    pitches = signal.drive_pitches(float(lead)) if isinstance(lead, (int, float)) and hasattr(
+        signal, "drive_pitches") else ()
+    return {"band_hz": band, "drive_modes_hz": modes, "drive_pitches_m": pitches}
 
 
 def run_detectors(inputs: Recording, detectors: Sequence[Detector], *, check: bool = True) -> DetectionReport:
@@ -329,7 +340,7 @@ class TraceDetection:
 def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | None = None, teeth: int | None = None,
                     spindle_rpm: float | None = None, limits: TeachLimits | None = None,
                     force_limit_n: float | None = None, baseline_revs: int | None = None,
-                    drive_modes_hz: Sequence[float] = ()) -> TraceDetection:
+                    drive_modes_hz: Sequence[float] = (), drive_pitches_m: Sequence[float] = ()) -> TraceDetection:
     """Run the default detectors on every estimated force of a trace (``drivesense detect``'s rule).
 
     The teeth come from ``teeth``, the trace's tool or the spectrum of the forces and drive signals
@@ -347,9 +358,10 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
         :func:`detector_inputs` of the trace and its estimated forces.
     band_hz : float, optional
         The estimate's bandwidth [Hz].
-    teeth, spindle_rpm, limits, force_limit_n, baseline_revs, drive_modes_hz
+    teeth, spindle_rpm, limits, force_limit_n, baseline_revs, drive_modes_hz, drive_pitches_m
         As in :func:`default_detectors` (``--teeth``, ``--spindle-rpm``, ``--limits``, ``--force-limit``,
-        ``--baseline-revs``; :func:`estimate_limits` gives ``band_hz`` and ``drive_modes_hz``).
+        ``--baseline-revs``; :func:`estimate_limits` gives ``band_hz``, ``drive_modes_hz`` and
+        ``drive_pitches_m``).
 
     Raises
     ------
@@ -371,7 +383,7 @@ def detect_in_trace(trace: Recording, inputs: Recording, *, band_hz: float | Non
     for ax in axes:
         detectors += default_detectors(ax, teeth=z, spindle_rpm=rpm, limits=limits if ax == axes[0] else None,
                                        force_limit_n=limit, band_hz=band_hz, baseline_revs=baseline_revs,
-                                       drive_modes_hz=drive_modes_hz)
+                                       drive_modes_hz=drive_modes_hz, drive_pitches_m=drive_pitches_m)
     for det in [d for d in detectors if d.unusable(inputs.fs, rpm)]:
         detectors.remove(det)
         note = f"{_LABELS.get(det.name, det.name)} detection is off: {det.unusable(inputs.fs, rpm)}"

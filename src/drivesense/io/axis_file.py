@@ -33,7 +33,8 @@ __all__ = ["read_axis_file", "write_axis_file"]
 
 _UNITS = {"J_r": "kg m^2", "M_t": "kg", "C_t": "N s/m", "C_k": "N s/m", "D_r": "N m s/rad", "K_r": "N/m",
           "lead": "m/rev", "K_t": "N m/A", "T_a": "s", "T_b": "s", "T_comp": "s", "omega_cc": "rad/s",
-          "lpf_hz": "Hz", "lpf_order": ""}
+          "lpf_hz": "Hz", "lpf_order": "",
+          "encoder_signal_periods": "signal periods per motor revolution, 0: not known"}
 
 
 def read_axis_file(path) -> tuple[BallScrewAxis, SignalParams]:

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from drivesense.machine.ballscrew import BallScrewAxis
 from drivesense.machine.friction import LuGreFriction, Ripple
+from drivesense.machine.signal_chain import SignalParams
 from drivesense.machine.stage import StagePhysics
 
-__all__ = ["TABLE1_KT", "table1_axis", "table1_stage"]
+__all__ = ["TABLE1_KT", "table1_axis", "table1_signal", "table1_stage"]
 
 #: Assumed torque constant of the Table 1 stage [N*m/A] (not given in the paper).
 TABLE1_KT = 0.45
@@ -32,6 +33,13 @@ def table1_axis() -> BallScrewAxis:
     """
     return BallScrewAxis(J_r=5.18e-5, M_t=6.55, C_t=8.21e2, C_k=1.76e3, D_r=6.50e-3,
                          K_r=40.5e6, lead=5e-3, K_t=TABLE1_KT)
+
+
+def table1_signal() -> SignalParams:
+    """The signal chain of the first paper's drive: its dead times, current loop and low-pass (the
+    :class:`~drivesense.machine.signal_chain.SignalParams` defaults) and its motor encoder of 2^23 counts made
+    of 512 signal periods per revolution."""
+    return SignalParams(encoder_signal_periods=512)
 
 
 def table1_stage() -> StagePhysics:

@@ -34,6 +34,13 @@ class SignalParams:
         Cut-off of the Butterworth low-pass [Hz].
     lpf_order : int
         Order of the low-pass (even, 2-8).
+    encoder_signal_periods : int
+        Signal periods per revolution of the motor encoder; 0: not known.  Its
+        interpolation error repeats every ``lead / encoder_signal_periods`` of
+        travel and, through the twice-differentiated position, shows in the
+        force estimate as a line at that pitch's frequency ``|v| / pitch``,
+        which an override moves through the chatter band
+        (:meth:`drive_pitches`).
     """
 
     T_a: float = 0.2e-3
@@ -42,6 +49,7 @@ class SignalParams:
     omega_cc: float = 5000.0
     lpf_hz: float = 1000.0
     lpf_order: int = 4
+    encoder_signal_periods: int = 0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -54,6 +62,24 @@ class SignalParams:
             raise ConfigError(f"signal parameter 'lpf_hz' must be > 0, got {self.lpf_hz!r}")
         if int(self.lpf_order) != self.lpf_order or not 1 <= self.lpf_order <= 8:
             raise ConfigError(f"signal parameter 'lpf_order' must be an integer 1-8, got {self.lpf_order!r}")
+        if int(self.encoder_signal_periods) != self.encoder_signal_periods:
+            raise ConfigError(f"signal parameter 'encoder_signal_periods' must be a whole number of periods per "
+                              f"revolution (0: not known), got {self.encoder_signal_periods!r}")
+
+    def drive_pitches(self, lead: float) -> tuple[float, ...]:
+        """The travel over which the drive's measuring error repeats [m]: the encoder's signal period.
+
+        Parameters
+        ----------
+        lead : float
+            Screw lead [m/rev].
+
+        Returns
+        -------
+        tuple of float
+            ``(lead / encoder_signal_periods,)``, or empty when the encoder is not known.
+        """
+        return (lead / self.encoder_signal_periods,) if self.encoder_signal_periods > 0 and lead > 0 else ()
 
     def check_rate(self, fs: float) -> None:
         """Raise :class:`ConfigError` if the low-pass cut-off is not below Nyquist at ``fs`` [Hz].
@@ -69,7 +95,7 @@ class SignalParams:
 
     def to_dict(self) -> dict[str, float]:
         """Parameters as a plain dict (SI)."""
-        return {k: (int(v) if k == "lpf_order" else float(v)) for k, v in asdict(self).items()}
+        return {k: (int(v) if k in ("lpf_order", "encoder_signal_periods") else float(v)) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, values: dict, *, source: str = "signal parameters") -> "SignalParams":

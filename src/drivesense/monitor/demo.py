@@ -22,11 +22,11 @@ DEMO_FORCE_LIMIT_N = 400.0
 
 @lru_cache(maxsize=1)
 def _fitted():
-    from drivesense.estimate import SignalParams, make
-    from drivesense.machine.presets import table1_axis
+    from drivesense.estimate import make
+    from drivesense.machine.presets import table1_axis, table1_signal
     from drivesense.sim.scenarios import ScenarioSettings, simulate_idle
 
-    est = make("vibration", axis=table1_axis(), signal=SignalParams())
+    est = make("vibration", axis=table1_axis(), signal=table1_signal())
     est.fit(simulate_idle(demo_condition(), replace(ScenarioSettings(), duration=6.0), seed=5000))
     return est
 
