@@ -10,11 +10,12 @@ uniform position grid before the FFT — puts them at fixed wavelengths.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy import signal as sps
 
 from drivesense.errors import InvalidSignalError
 
-__all__ = ["amplitude_spectrum", "wavelength_spectrum", "dominant_wavelengths"]
+__all__ = ["amplitude_spectrum", "wavelength_spectrum", "dominant_wavelengths", "median_of", "sosfilt_with_state"]
 
 
 def amplitude_spectrum(x, fs: float) -> tuple[np.ndarray, np.ndarray]:
@@ -118,3 +119,51 @@ def dominant_wavelengths(wavelength, amplitude, n: int = 5, *, min_separation: f
         if len(peaks) == n:
             break
     return peaks
+
+
+def median_of(x: np.ndarray) -> float:
+    """The median of a 1-D array [unit of x] (numpy's, without its per-call wrappers; NaN when empty).
+
+    Parameters
+    ----------
+    x : ndarray
+        The values [any unit].
+    """
+    n = x.size
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return float(0.5 * (part[k - 1] + part[k]))
+
+
+@njit(cache=True, nogil=True)
+def sosfilt_with_state(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``scipy.signal.sosfilt(sos, x, zi=zi)`` (direct form II transposed, as scipy), ``zi`` updated in place.
+
+    Compiled: no per-call overhead for the short chunks of a live stream.
+
+    Parameters
+    ----------
+    sos : ndarray
+        Second-order sections, (n, 6) [-].
+    x : ndarray
+        The signal [any unit].
+    zi : ndarray
+        The filter state, (n, 2) [unit of x]; updated in place.
+    """
+    y = x.copy()
+    for s in range(sos.shape[0]):
+        b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
+        z0, z1 = zi[s, 0], zi[s, 1]
+        for i in range(y.size):
+            xi = y[i]
+            yi = b0 * xi + z0
+            z0 = b1 * xi - a1 * yi + z1
+            z1 = b2 * xi - a2 * yi
+            y[i] = yi
+        zi[s, 0] = z0
+        zi[s, 1] = z1
+    return y

@@ -14,9 +14,13 @@ tooth-pass content, with the baseline scaled to the present force level
     s = |H_tooth| / |B_tooth|,     d = |H_other - s B_other| / |H_tooth|
 
 It crosses its threshold within one tooth pass of a damaged tooth's first
-pass; the per-tooth shares of the force in the last revolution against the
-baseline's then say which tooth lost how much of its edge
-(``edge_loss`` >= 0.6: ``breakage``, else ``chipping``).  A one-flute tool
+pass.  The event keeps that sample's time but is named one revolution later:
+the force pattern of the whole revolution after the detection against the
+baseline's (mean force per angle bin) is fitted with a mechanistic pulse per
+tooth, the lost share of one tooth's edge carried as chip to the next
+(:mod:`drivesense.events.edge_loss`), which gives ``edge_loss`` (>= 0.9:
+``breakage``, else ``chipping``).  Where the cut ends before, the per-tooth
+shares of the force at the detection name it.  A one-flute tool
 has no once-per-revolution content of its own: there a sudden drop of the
 force below ``level_drop`` of the baseline while the feed goes on is a
 breakage.
@@ -35,9 +39,11 @@ import numpy as np
 import scipy.signal
 from numba import njit
 
+from drivesense.dsp import median_of, sosfilt_with_state
 from drivesense.errors import SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
 from drivesense.events.detector import Detector, spindle_speed_of
+from drivesense.events.edge_loss import fit_edge_loss, pattern_bins, warm_edge_loss
 from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["BreakageDetector"]
@@ -45,39 +51,11 @@ __all__ = ["BreakageDetector"]
 _TWO_PI = 2.0 * math.pi
 
 
-def _median(x: np.ndarray) -> float:
-    """The median of a 1-D array [unit of x] (numpy's, without its per-call wrappers; NaN when empty)."""
-    n = x.size
-    if n == 0:
-        return float("nan")
-    k = n // 2
-    if n % 2:
-        return float(np.partition(x, k)[k])
-    part = np.partition(x, (k - 1, k))
-    return float(0.5 * (part[k - 1] + part[k]))
-
-
-@njit(cache=True, nogil=True)
-def _sosfilt(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """``scipy.signal.sosfilt(sos, x, zi=zi)`` (direct form II transposed, as scipy), ``zi`` updated in place."""
-    y = x.copy()
-    for s in range(sos.shape[0]):
-        b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
-        z0, z1 = zi[s, 0], zi[s, 1]
-        for i in range(y.size):
-            xi = y[i]
-            yi = b0 * xi + z0
-            z0 = b1 * xi - a1 * yi + z1
-            z1 = b2 * xi - a2 * yi
-            y[i] = yi
-        zi[s, 0] = z0
-        zi[s, 1] = z1
-    return y
 _BINS_PER_TOOTH = 8
 # scalar state slots
 (_THETA, _NEXT_REV, _REVS, _MEAN, _M2, _NSTAT, _THR, _PERSIST, _LATCH, _CUTTING, _HEAD, _COUNT,
- _DROP, _GATEOFF, _LHEAD, _DRIFT, _DEARLY, _THOFF) = range(18)
-_N_SLOTS = 18
+ _DROP, _GATEOFF, _LHEAD, _DRIFT, _DEARLY, _THOFF, _PEND, _PEND_TH, _PEND_I) = range(21)
+_N_SLOTS = 21
 
 
 @njit(cache=True, nogil=True)
@@ -94,6 +72,36 @@ def _accumulate(harm, weight, theta):  # pragma: no cover - numba
 def _sector(theta, nb):  # pragma: no cover - numba
     """Bin of the spindle angle ``theta`` [rad] among ``nb`` equal sectors of a revolution."""
     return int((theta % _TWO_PI) / _TWO_PI * nb) % nb
+
+
+@njit(cache=True, nogil=True)
+def _window_pattern(sc, ring_s, ring_t, out):  # pragma: no cover - numba
+    """Sum of the raw force and count of samples per angle bin over the window (one revolution) into ``out``."""
+    cap = ring_s.size
+    nbm = out.shape[1]
+    out[:, :] = 0.0
+    for j in range(int(sc[_COUNT])):
+        idx = int(sc[_HEAD] - sc[_COUNT] + j) % cap
+        b = _sector(ring_t[idx] + sc[_THOFF], nbm)
+        out[0, b] += ring_s[idx]
+        out[1, b] += 1.0
+
+
+@njit(cache=True, nogil=True)
+def _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data, ev_pat, named, i):  # pragma: no cover
+    """The pending event out, with the baseline's pattern and (``named``) the revolution since the detection."""
+    if n_ev >= ev_index.size:
+        return n_ev
+    ev_index[n_ev] = int(sc[_PEND_I] - start)
+    for q in range(5):
+        ev_data[n_ev, q] = pend_data[q]
+    ev_data[n_ev, 5] = 1.0 if named else 0.0
+    ev_data[n_ev, 6] = i - (sc[_PEND_I] - start)
+    ev_pat[n_ev, 0:2, :] = pend_base
+    if named:
+        _window_pattern(sc, ring_s, ring_t, ev_pat[n_ev, 2:4, :])
+    sc[_PEND] = 0.0
+    return n_ev + 1
 
 
 @njit(cache=True, nogil=True)
@@ -123,7 +131,8 @@ def _rebase(sc, ring_v, ring_r, ring_t, harm, bins):  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_min, baseline_revs, d_floor, sigmas,
                    persist_n, level_drop, alpha, step_ratio, min_shift, sc, levels, ring_v, ring_r, ring_t, harm,
-                   heff, bins, ema_h, ema_b, snap_h, snap_b, stat, thr_out, ev_index, ev_data):  # pragma: no cover - numba
+                   heff, bins, ema_h, ema_b, snap_h, snap_b, stat, thr_out, ev_index, ev_data, ring_s, pat, pat_ema,
+                   pat_snap, pend_data, pend_base, ev_pat, start):  # pragma: no cover - numba
     n = force.size
     cap = ring_v.size
     nb = bins.size
@@ -147,6 +156,7 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
         ring_v[head] = v
         ring_r[head] = abs(raw[i]) * dth
         ring_t[head] = th
+        ring_s[head] = raw[i]
         sc[_HEAD] = (sc[_HEAD] + 1) % cap
         sc[_COUNT] += 1
         _accumulate(harm, v / math.pi, th)
@@ -160,6 +170,10 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             _accumulate(harm, -ring_v[tail] / math.pi, tt)
             bins[_sector(tt + sc[_THOFF], nb)] -= ring_r[tail]
             sc[_COUNT] -= 1
+        if sc[_PEND] != 0.0 and th - sc[_PEND_TH] >= _TWO_PI:
+            # a whole revolution since the detection: the event is named from it (edge_loss.py)
+            n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data, ev_pat,
+                                 True, i)
         # the window covers exactly one revolution: the oldest sample counts for the part of its angle
         # step inside it (else the window's edge leaks the pattern into every harmonic)
         for k in range(nk):
@@ -210,11 +224,17 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
             continue
         if feed_ok[i] < 0.5 and sc[_CUTTING] != 0.0 and sc[_REVS] >= 0.0 and cutting:
             # the feed changes: the pattern changes with it (a feed override); learn it afresh
+            if sc[_PEND] != 0.0:
+                n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data,
+                                     ev_pat, False, i)
             sc[_REVS] = -1.0
             sc[_NSTAT] = 0.0
             sc[_PERSIST] = 0.0
             sc[_DROP] = 0.0
         if not cutting:
+            if sc[_PEND] != 0.0:
+                n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data,
+                                     ev_pat, False, i)
             if sc[_CUTTING] != 0.0:
                 sc[_CUTTING] = 0.0
                 sc[_REVS] = 0.0
@@ -251,16 +271,22 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
                 sc[_THR] = max(d_floor, sc[_MEAN] + sigmas * math.sqrt(sc[_M2]))
             elif sc[_REVS] < baseline_revs:
                 sc[_NSTAT] = 0.0
+            _window_pattern(sc, ring_s, ring_t, pat)
             if sc[_REVS] <= 0.0:
                 for k in range(nk):
                     ema_h[k] = heff[k]
                 for b in range(nb):
                     ema_b[b] = bins[b]
+                pat_ema[:, :] = pat
             elif sc[_LATCH] == 0.0:
                 for k in range(nk):
                     ema_h[k] += alpha * (heff[k] - ema_h[k])
                 for b in range(nb):
                     ema_b[b] += alpha * (bins[b] - ema_b[b])
+                pat_ema[:, :] += alpha * (pat - pat_ema)
+            for q in range(pat_snap.shape[0] - 1, 0, -1):
+                pat_snap[q] = pat_ema if sc[_REVS] <= 0.0 else pat_snap[q - 1]
+            pat_snap[0] = pat_ema
             depth = snap_h.shape[0]
             for k in range(nk):
                 for q in range(depth - 1, 0, -1):
@@ -377,13 +403,17 @@ def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_mi
                 # leaving the part notches every pulse), which no damaged tooth does
                 sc[_PERSIST] = 0.0
                 continue
-            ev_index[n_ev] = i
-            ev_data[n_ev, 0] = min(worst, 1.0)
-            ev_data[n_ev, 1] = d
-            ev_data[n_ev, 2] = sc[_THR]
-            ev_data[n_ev, 3] = ((shift_o + worst_j * per) % nb) * 360.0 / nb
-            ev_data[n_ev, 4] = s_scale
-            n_ev += 1
+            # named one revolution later, from the whole revolution after the detection (the sector shares
+            # above are the fallback when the cut ends before)
+            pend_data[0] = min(worst, 1.0)
+            pend_data[1] = d
+            pend_data[2] = sc[_THR]
+            pend_data[3] = ((shift_o + worst_j * per) % nb) * 360.0 / nb
+            pend_data[4] = s_scale
+            pend_base[:, :] = pat_snap[2]
+            sc[_PEND] = 1.0
+            sc[_PEND_TH] = th
+            sc[_PEND_I] = start + i
             sc[_LATCH] = 1.0
             sc[_REVS] = baseline_revs        # count on from here; re-learn after baseline_revs + 2 more
     return n_ev
@@ -413,14 +443,15 @@ class BreakageDetector(Detector):
     min_rpm : float
         Slowest spindle the window is sized for [min^-1].
     breakage_loss : float
-        Estimated edge loss at or above which the event is a breakage, below a chipping [-].
+        Estimated edge loss at or above which the event is a breakage, below a chipping [-] (the pulse fit
+        reads a lost tooth within about 0.1 of 1 and a chip of up to 80 % within about 0.1 of its size).
     """
 
     name = "breakage"
 
     def __init__(self, axis: str = "x", teeth: int = 2, *, spindle_rpm: float | None = None, baseline_revs: int = 8,
                  gate_n: float = 1.0, threshold: float = 0.12, sigmas: float = 8.0, level_drop: float = 0.3,
-                 min_rpm: float = 500.0, breakage_loss: float = 0.6) -> None:
+                 min_rpm: float = 500.0, breakage_loss: float = 0.9) -> None:
         self._axis = str(axis)
         self.teeth = check_int(teeth, "teeth")
         self.spindle_rpm = None if spindle_rpm is None else check_number(spindle_rpm, "spindle_rpm", positive=True)
@@ -441,7 +472,8 @@ class BreakageDetector(Detector):
         return (f"force_{self._axis}",)
 
     def latency_s(self, fs: float) -> float:
-        """Two revolutions at the slowest expected spindle speed [s] (worst case; typically one).
+        """Three revolutions at the slowest expected spindle speed [s]: up to two to detect (typically one)
+        and the whole revolution after the detection that names the event.
 
         Parameters
         ----------
@@ -449,7 +481,7 @@ class BreakageDetector(Detector):
             Sample rate [Hz].
         """
         rpm = self.spindle_rpm or self.min_rpm
-        return 2 * 60.0 / rpm
+        return 3 * 60.0 / rpm
 
     def new_state(self, fs: float) -> dict:
         """Ring of one revolution at ``min_rpm``, harmonics, bins, baselines (constant size).
@@ -462,10 +494,15 @@ class BreakageDetector(Detector):
         cap = int(math.ceil(fs * 60.0 / self.min_rpm)) + 2
         nk = 2 * self.teeth if self.teeth > 1 else 2
         nb = _BINS_PER_TOOTH * self.teeth
+        nbm = pattern_bins(self.teeth)
+        if self.teeth > 1:
+            warm_edge_loss(nbm, self.teeth)      # the naming's grid, built now rather than at the first alarm
         return {"sc": np.zeros(_N_SLOTS), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
                 "ring_t": np.zeros(cap), "harm": np.zeros(nk, dtype=complex), "heff": np.zeros(nk, dtype=complex),
                 "bins": np.zeros(nb), "ema_h": np.zeros(nk, dtype=complex), "ema_b": np.zeros(nb),
                 "snap_h": np.zeros((6, nk), dtype=complex), "snap_b": np.zeros((6, nb)),
+                "ring_s": np.zeros(cap), "pat": np.zeros((2, nbm)), "pat_ema": np.zeros((2, nbm)),
+                "pat_snap": np.zeros((6, 2, nbm)), "pend_data": np.zeros(5), "pend_base": np.zeros((2, nbm)),
                 "fs": float(fs), "armed_ever": False, "cut_seen": False}
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
@@ -484,7 +521,7 @@ class BreakageDetector(Detector):
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
         raw = np.ascontiguousarray(force)
-        w_median = _median(omega)
+        w_median = median_of(omega)
         force = self._highpass(state, force, w_median)
         feed_ok = process_steady(arrays, state)
         if "feed_speed" not in arrays and self.teeth > 1:
@@ -494,7 +531,8 @@ class BreakageDetector(Detector):
         stat = np.empty(n)
         thr = np.empty(n)
         ev_index = np.zeros(16, dtype=np.int64)
-        ev_data = np.zeros((16, 5))
+        ev_data = np.zeros((16, 7))
+        ev_pat = np.zeros((16, 4, state["pat"].shape[1]))
         fs = state["fs"]
         persist = max(1, int(round(0.5 * 60.0 / max(w_median * 60 / _TWO_PI, 1.0) / self.teeth * fs))) \
             if n else 1
@@ -503,19 +541,32 @@ class BreakageDetector(Detector):
                               persist, self.level_drop, self.alpha, self.step_ratio, self.min_shift, state["sc"],
                               state["levels"], state["ring_v"], state["ring_r"], state["ring_t"], state["harm"],
                               state["heff"], state["bins"], state["ema_h"], state["ema_b"], state["snap_h"],
-                              state["snap_b"], stat, thr, ev_index, ev_data)
+                              state["snap_b"], stat, thr, ev_index, ev_data, state["ring_s"], state["pat"],
+                              state["pat_ema"], state["pat_snap"], state["pend_data"], state["pend_base"], ev_pat,
+                              float(start))
         state["armed_ever"] = state["armed_ever"] or bool(np.any(np.isfinite(thr)))
         state["cut_seen"] = state["cut_seen"] or bool(np.any(np.isfinite(stat))) or state["sc"][_CUTTING] > 0
         if state["sc"][_CUTTING] == 0.0:
             state["rest_end"] = start + n          # out of a cut here: the state holds one revolution and filters
         events = []
         for e in range(n_ev):
-            loss, d, t, tooth, scale = ev_data[e]
-            kind = "breakage" if loss >= self.breakage_loss else "chipping"
+            loss, d, t, tooth, scale, named, delay = ev_data[e]
+            fit = fit_edge_loss(*ev_pat[e], self.teeth) if named else None
+            if fit is not None:
+                loss = fit.edge_loss
+            # the level rule (one flute) fires only when the force fell below level_drop: the flute is gone
+            kind = "breakage" if loss >= self.breakage_loss or tooth < 0 else "chipping"
             over = d / t if t > 0 else 1.0
             confidence = min(1.0, 0.5 + 0.5 * (over - 1.0)) if tooth >= 0 else min(1.0, 0.5 + loss / 2)
             evidence = {"edge_loss": float(round(loss, 4)), "statistic": float(d), "threshold": float(t),
                         "force_scale": float(scale), "guards": guard_source(state)}
+            if tooth >= 0:
+                # how the loss was read: the pulse fit over the revolution after the detection, else (the cut
+                # ended first) the sector shares at the detection; and when the event was named
+                evidence["edge_loss_from"] = "pulse fit" if fit is not None else "sector shares"
+                if fit is not None:
+                    evidence["fit_residual"] = float(round(fit.residual, 4))
+                evidence["named_after_s"] = float(delay / fs)
             if tooth >= 0:
                 evidence["tooth_angle_deg"] = float(round(tooth, 1))   # where the damaged tooth's sector starts
             else:
@@ -556,7 +607,7 @@ class BreakageDetector(Detector):
             state["hp_corner"] = corner
             state["hp_sos"] = scipy.signal.butter(2, corner, btype="high", fs=state["fs"], output="sos")
             state["hp_zi"] = scipy.signal.sosfilt_zi(state["hp_sos"]) * force[0]
-        return _sosfilt(state["hp_sos"], np.ascontiguousarray(force, dtype=float), state["hp_zi"])
+        return sosfilt_with_state(state["hp_sos"], np.ascontiguousarray(force, dtype=float), state["hp_zi"])
 
     def replay_from(self, state: dict) -> int | None:
         """In a cut: one revolution window and a second (the filters) before the cut began; else None.

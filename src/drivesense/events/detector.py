@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
-from drivesense.nc_context import context_at
+from drivesense.nc_context import CONTEXT_CHANNELS, context_at
 from drivesense.recording import Recording
 from drivesense.timebase import check_fs
 
@@ -389,6 +389,9 @@ class DetectorStream:
         self.samples_seen = 0
         self._t0 = float(t0)
         self._t0_fixed = False
+        # the context channels' last samples, for an event a detector emits after the chunk its sample was in
+        self._context_tail: dict[str, np.ndarray] = {}
+        self._context_keep = int(math.ceil(self.latency_s * self.fs)) + 1
 
     def shift_time(self, seconds: float) -> None:
         """Move the stream's clock by ``seconds`` [s]: the next chunk starts that much later than contiguous.
@@ -411,6 +414,23 @@ class DetectorStream:
         """
         index = self.detector.replay_from(self.state)
         return None if index is None else self._t0 + index / self.fs
+
+    def _context(self, arrays: Mapping[str, np.ndarray], index: int) -> dict:
+        """The NC's context at the chunk's sample ``index`` (negative: that many samples before the chunk)."""
+        if index >= 0 or not self._context_tail:
+            return context_at(arrays, index)
+        size = len(next(iter(self._context_tail.values())))
+        return context_at(self._context_tail, size + index)
+
+    def _keep_context(self, arrays: Mapping[str, np.ndarray]) -> None:
+        """Keep the context channels' last samples (a detector's declared latency of them)."""
+        for name in CONTEXT_CHANNELS:
+            values = arrays.get(name)
+            if values is None:
+                continue
+            past = self._context_tail.get(name)
+            joined = values if past is None else np.concatenate([past, values])
+            self._context_tail[name] = joined[-self._context_keep:]
 
     def push(self, chunk: Recording | Mapping[str, Any]) -> Detection:
         """Detect in the next samples.
@@ -452,7 +472,8 @@ class DetectorStream:
         # each event carries the NC's context at its sample (tool, program, block...) where the stream has it
         events = [Event(kind=kind, time_s=self._t0 + index / self.fs, axis=self.detector.axis,
                         confidence=conf, latency_s=self.latency_s, detector=self.detector.name,
-                        evidence={**ev, **context_at(arrays, index - self.samples_seen)})
+                        evidence={**ev, **self._context(arrays, index - self.samples_seen)})
                   for index, kind, conf, ev in raw]
         self.samples_seen += n
+        self._keep_context(arrays)
         return Detection(events, stat, thr, held[0] if held else None)

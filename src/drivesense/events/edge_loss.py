@@ -1,0 +1,284 @@
+"""How much of its edge a damaged tooth lost: a mechanistic fit of the force pattern before and after.
+
+The breakage detector (:mod:`drivesense.events.breakage`) hands over two
+patterns of the force along one axis over one spindle revolution, each the
+mean force per angle bin: ``base`` from revolutions before the event and
+``after`` from a whole revolution after it.  Both are modelled as the sum over
+the ``N`` teeth of one tooth's force pulse, shifted by the tooth pitch
+``2 pi / N``.  The pulse is the mechanistic one: with the tooth angle ``phi``
+and the chip ``h = f_z sin phi``, a tooth's force along any axis is a sum of
+a cutting part in ``sin phi cos phi`` and ``sin^2 phi`` (proportional to the
+chip) and an edge part in ``cos phi`` and ``sin phi`` (not), nonzero over the
+engagement ``[phi_st, phi_ex]`` and spread over the helix lag ``lag`` (the
+axial slices enter one after the other).  A tooth that loses the share ``L``
+of its edge loses ``L`` of both parts, and the next tooth takes the chip it
+leaves: its cutting part grows by ``L`` times the lost tooth's::
+
+    base  = sum_m S^m (b_m C + E)
+    after = base + L (-S^j (b_j C + E) + S^(j+1) b_j C)
+
+(``S`` a shift by one pitch, ``C`` and ``E`` the cutting and edge pulses;
+runout gives each tooth's chip a constant offset, ``(sin phi + rho_m)`` in feeds
+per tooth, which ``b_m C`` stands for here).  The engagement,
+the lag and the tooth's place are searched on a grid, the four coefficients of
+``C`` and ``E`` and the loss ``L`` by least squares on both patterns together;
+then the chip offsets and the rest are refined in turn.  The tooth-pass
+sum alone (``base``) cannot tell one tooth's pulse from its overlap with the
+others' (slotting, many teeth); the loss of one tooth and the chip carried to
+the next break that symmetry, and the mechanistic pulse closes the rest.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["EdgeLossFit", "fit_edge_loss", "pattern_bins", "warm_edge_loss"]
+
+_TWO_PI = 2.0 * math.pi
+#: The grids searched: engagement limits [deg] (every pair), helix lags [deg], losses [-].
+_ANGLE_STEP_DEG = 15.0
+_LAGS_DEG = (0.0, 10.0, 20.0, 35.0, 50.0)
+_LOSSES = np.linspace(0.0, 1.3, 14)
+_SUB = 8
+
+
+@dataclass(frozen=True)
+class EdgeLossFit:
+    """The result of :func:`fit_edge_loss`.
+
+    Attributes
+    ----------
+    edge_loss : float
+        Share of the damaged tooth's edge lost, 0..1 [-].
+    tooth_angle_deg : float
+        Spindle angle at which the damaged tooth's angle is zero (modulo a revolution) [deg].
+    engagement_deg : tuple of float
+        The engagement ``(phi_st, phi_ex)`` the fit found [deg].
+    lag_deg : float
+        The helix lag the fit found [deg].
+    residual : float
+        RMS of what the model leaves of both patterns over their RMS [-].
+    """
+
+    edge_loss: float
+    tooth_angle_deg: float
+    engagement_deg: tuple
+    lag_deg: float
+    residual: float
+
+
+def pattern_bins(teeth: int, target: int = 72) -> int:
+    """Bins of a revolution for the patterns: a multiple of ``teeth`` near ``target``.
+
+    Parameters
+    ----------
+    teeth : int
+        Number of teeth.
+    target : int
+        Wanted number of bins.
+    """
+    return int(teeth * max(2, round(target / teeth)))
+
+
+def warm_edge_loss(bins: int, teeth: int) -> None:
+    """Build (once per process) the grid :func:`fit_edge_loss` searches for ``bins`` bins and ``teeth`` teeth.
+
+    A live detector calls it when it starts, so that its first alarm is not held up by it.
+
+    Parameters
+    ----------
+    bins : int
+        Bins of a revolution (:func:`pattern_bins`).
+    teeth : int
+        Number of teeth (>= 2).
+    """
+    _grid_tables(int(bins), int(teeth))
+
+
+def _fill(sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Mean per bin, empty bins interpolated (circularly) from their neighbours."""
+    ok = counts > 0
+    out = np.zeros(sums.size)
+    out[ok] = sums[ok] / counts[ok]
+    if 0 < ok.sum() < sums.size:
+        x = np.arange(sums.size)
+        out = np.interp(x, x[ok], out[ok], period=sums.size)
+    return out
+
+
+def _bases(nb: int, lo: float, hi: float, lag: float) -> np.ndarray:
+    """The four pulses (cutting: ``sin cos``, ``sin^2``; edge: ``cos``, ``sin``) of a tooth at angle 0, (4, nb)."""
+    theta = (np.arange(nb) + 0.5) / nb * _TWO_PI
+    out = np.zeros((4, nb))
+    for q in range(_SUB):
+        phi = (theta - lag * (q + 0.5) / _SUB) % _TWO_PI
+        inside = (phi >= lo) & (phi <= hi)
+        s, c = np.sin(phi), np.cos(phi)
+        out += np.stack([s * c, s * s, c, s]) * inside / _SUB
+    return out
+
+
+def _design(g: np.ndarray, teeth: int, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Columns of the model for both patterns: the part without the loss and the part per unit loss.
+
+    Tooth ``m``'s chip is ``sin phi + offsets[m]`` (runout moves each tooth's edge in or out by a constant,
+    in feeds per tooth), its force that chip times the cutting pulse plus the edge pulse.
+    """
+    nb = g.shape[1]
+    per = nb // teeth
+
+    def tooth(m):
+        return np.stack([g[0] + offsets[m] * g[2], g[1] + offsets[m] * g[3], g[2], g[3]])
+
+    tot = np.zeros_like(g)
+    for m in range(teeth):
+        tot += np.roll(tooth(m), m * per, axis=1)
+    t0 = tooth(0)
+    lost = -t0
+    lost[:2] += np.roll(t0[:2], per, axis=1)
+    m0 = np.concatenate([tot, tot], axis=1).T
+    m1 = np.concatenate([np.zeros_like(tot), lost], axis=1).T
+    return m0, m1
+
+
+def _scan(m0, m1, y, losses):
+    """Least squares over the coefficients for every loss and every column of ``y``: (residual, loss index)."""
+    a00, a01, a11 = m0.T @ m0, m0.T @ m1, m1.T @ m1
+    b0, b1 = m0.T @ y, m1.T @ y
+    ridge = 1e-9 * (np.trace(a00) + 1e-300) * np.eye(4)
+    k = a00[None] + losses[:, None, None] * (a01 + a01.T)[None] + (losses ** 2)[:, None, None] * a11[None] + ridge
+    rhs = b0[None] + losses[:, None, None] * b1[None]
+    coef = np.linalg.solve(k, rhs)
+    res = np.sum(y * y, axis=0)[None] - np.sum(rhs * coef, axis=1)
+    return res, coef
+
+
+def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) -> EdgeLossFit | None:
+    """The damaged tooth's edge loss from the force pattern before and after (see the module docstring).
+
+    Parameters
+    ----------
+    base_sums : array_like
+        Per angle bin of a revolution (spindle angle from 0), the sum of the force before the event [N];
+        ``pattern_bins(teeth)`` bins.
+    base_counts : array_like
+        Per bin, the number (or weight) of the samples summed [-].
+    after_sums : array_like
+        The same sums over a whole revolution after the event [N].
+    after_counts : array_like
+        Their counts [-].
+    teeth : int
+        Number of teeth (>= 2).
+
+    Returns
+    -------
+    EdgeLossFit or None
+        None when a pattern is empty or flat (nothing to fit).
+    """
+    base = _fill(np.asarray(base_sums, dtype=float), np.asarray(base_counts, dtype=float))
+    after = _fill(np.asarray(after_sums, dtype=float), np.asarray(after_counts, dtype=float))
+    nb = base.size
+    if teeth < 2 or nb % teeth or not np.any(np.asarray(after_counts) > 0) or not np.any(np.asarray(base_counts) > 0):
+        return None
+    scale = float(np.sqrt(np.mean(base ** 2) + np.mean(after ** 2)))
+    if not scale > 0.0:
+        return None
+    base = base / scale
+    after = after / scale
+    idx = (np.arange(nb)[:, None] + np.arange(nb)[None, :]) % nb     # column r: the patterns turned by r bins
+    y = np.concatenate([base[idx], after[idx]], axis=0)
+    offsets = np.zeros(teeth)
+    fine = np.linspace(0.0, 1.3, 131)
+    order = None
+    for _ in range(2):
+        # the grid with the chip offsets held, then the offsets, the pulse and the loss refined in turn
+        lo, hi, lag, r, loss, res, order = _grid(y, nb, teeth, offsets, order)
+        g = _bases(nb, lo, hi, lag)
+        yr = y[:, r:r + 1]
+        for _ in range(3):
+            _, coef = _scan(*_design(g, teeth, offsets), yr, np.array([loss]))
+            offsets = _fit_offsets(g, coef[0, :, 0], teeth, loss, yr[:, 0], offsets)
+            rr, coef = _scan(*_design(g, teeth, offsets), yr, fine)
+            li = int(np.argmin(rr[:, 0]))
+            loss, res = float(fine[li]), float(rr[li, 0])
+    resid = math.sqrt(max(res, 0.0) / max(float(np.sum(yr ** 2)), 1e-300))
+    return EdgeLossFit(edge_loss=float(min(max(loss, 0.0), 1.0)), tooth_angle_deg=float(r * 360.0 / nb),
+                       engagement_deg=(float(np.rad2deg(lo)), float(np.rad2deg(hi))), lag_deg=float(np.rad2deg(lag)),
+                       residual=resid)
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_tables(nb: int, teeth: int):
+    """Every grid point's engagement and lag with its design for equal teeth (no runout), kept per (nb, teeth)."""
+    angles = np.deg2rad(np.arange(0.0, 180.0 + 1e-9, _ANGLE_STEP_DEG))
+    points = [(lo, hi, lag) for lo, hi in itertools.combinations(angles, 2) for lag in np.deg2rad(_LAGS_DEG)]
+    zero = np.zeros(teeth)
+    m0s, m1s = zip(*(_design(_bases(nb, lo, hi, lag), teeth, zero) for lo, hi, lag in points))
+    m0, m1 = np.stack(m0s), np.stack(m1s)                                 # (P, 2nb, 4)
+    t = np.swapaxes
+    return points, m0, m1, t(m0, 1, 2) @ m0, t(m0, 1, 2) @ m1, t(m1, 1, 2) @ m1
+
+
+def _grid(y, nb, teeth, offsets, order=None, keep=12):
+    """The engagement, lag, turn and loss of least residual on the grids (chip offsets held), and the grid
+    points in the order of their fit.
+
+    With offsets (runout) only the ``keep`` best grid points of the fit without them (``order``) are tried.
+    """
+    points, m0, m1, a00, a01, a11 = _grid_tables(nb, teeth)
+    if order is not None and np.any(offsets):
+        cand = []
+        for p in order[:keep]:
+            lo, hi, lag = points[p]
+            r2, _ = _scan(*_design(_bases(nb, lo, hi, lag), teeth, offsets), y, _LOSSES)
+            cand.append((float(r2.min()), int(p), int(np.argmin(r2))))
+        best, p, at = min(cand)
+        li, r = np.unravel_index(at, (len(_LOSSES), nb))
+        lo, hi, lag = points[p]
+        return lo, hi, lag, int(r), float(_LOSSES[li]), best, order
+    t = np.swapaxes
+    b0, b1 = t(m0, 1, 2) @ y, t(m1, 1, 2) @ y                              # (P, 4, nb)
+    ls = _LOSSES[None, :, None, None]
+    ridge = 1e-9 * (np.trace(a00, axis1=1, axis2=2)[:, None, None, None] + 1e-300) * np.eye(4)
+    k = a00[:, None] + ls * (a01 + t(a01, 1, 2))[:, None] + ls ** 2 * a11[:, None] + ridge
+    rhs = b0[:, None] + ls * b1[:, None]                                  # (P, L, 4, nb)
+    coef = np.linalg.inv(k) @ rhs
+    res = np.sum(y * y, axis=0) - np.sum(rhs * coef, axis=2)              # (P, L, nb)
+    flat = res.reshape(len(points), -1)
+    order = np.argsort(flat.min(axis=1))
+    p = int(order[0])
+    li, r = np.unravel_index(int(np.argmin(flat[p])), (len(_LOSSES), nb))
+    lo, hi, lag = points[p]
+    return lo, hi, lag, int(r), float(_LOSSES[li]), float(flat[p].min()), order
+
+
+def _fit_offsets(g, coef, teeth, loss, y, offsets):
+    """Each tooth's chip offset (runout) by least squares with the pulse and the loss held (mean zero)."""
+    nb = g.shape[1]
+    per = nb // teeth
+    cut0 = coef[0] * g[0] + coef[1] * g[1]
+    cut1 = coef[0] * g[2] + coef[1] * g[3]          # what a unit offset of the chip adds
+    edge = coef[2] * g[2] + coef[3] * g[3]
+    cols = np.zeros((2 * nb, teeth))
+    fixed = np.zeros(2 * nb)
+    for m in range(teeth):
+        c1 = np.roll(cut1, m * per)
+        cols[:nb, m] = c1
+        cols[nb:, m] = c1
+        f = np.roll(cut0 + edge, m * per)
+        fixed[:nb] += f
+        fixed[nb:] += f
+    # the loss: tooth 0 keeps (1 - loss) of its chip and edge, tooth 1 takes loss of tooth 0's chip
+    cols[nb:, 0] += -loss * cut1 + loss * np.roll(cut1, per)
+    fixed[nb:] += -loss * (cut0 + edge) + loss * np.roll(cut0, per)
+    if not np.any(cols):
+        return offsets
+    b, *_ = np.linalg.lstsq(cols, y - fixed, rcond=None)
+    if not np.all(np.isfinite(b)):
+        return offsets
+    return np.clip(b - np.mean(b), -3.0, 3.0)
