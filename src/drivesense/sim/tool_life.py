@@ -52,159 +52,22 @@ from drivesense.errors import ConfigError
 from drivesense.machine.cutting_power import CutTable
 from drivesense.machine.cutting_power import CutConditions
 from drivesense.machine.milling import CuttingCoefficients, milling_forces
+from drivesense.sim.wear_experiments import PASS_LENGTH, WearExperiment, section4_calibration, table1_experiments
 
 __all__ = ["PASS_LENGTH", "WearExperiment", "ToolLife", "table1_experiments", "section4_calibration", "simulate_tool_life",
            "simulate_calibration", "power_trace"]
 
-_RPM = 2 * math.pi / 60
-_DEG = math.pi / 180
 VB_LIMIT = 0.3e-3       # m, uniform flank wear criterion
 CHIP_LIMIT = 0.5e-3     # m, localised damage criterion
 CUT_SECONDS = 10.0      # s of steady cutting per calibration cut
-#: Cut distance of one wear cut [m]: a pass along the paper's 6-inch bar (assumed; experiment B calibrates after
-#: every pass, G and H after 4, C and D after 22).
-PASS_LENGTH = 0.1524
 AIR_SECONDS = 2.0       # s of air cut before each calibration cut
 FS_POWER = 100.0        # Hz, power sensor sampling
-_CAL_FEEDS = (0.5, 0.75, 1.0, 1.25)
 # material constants: new-tool K_tc [N/m^2], K_te [N/m] by (tool, workpiece); rubbing stress factor
 _K0 = {("HSS", "steel"): (2100e6, 35e3), ("carbide", "steel"): (1900e6, 30e3),
        ("HSS", "aluminium"): (750e6, 18e3), ("carbide", "aluminium"): (700e6, 15e3)}
 _TAU_W = 350e6            # N/m^2: K_te rise per m of flank land, HSS in steel
 _TOOL = {"HSS": {"taylor_n": 0.125, "tau": 1.0, "chips": 0.15, "chip_size": 0.02e-3, "alpha_c": 1.0e3},
          "carbide": {"taylor_n": 0.25, "tau": 0.7, "chips": 4.0, "chip_size": 0.04e-3, "alpha_c": 1.2e3}}
-
-
-@dataclass(frozen=True)
-class WearExperiment:
-    """One tool-wear experiment of the paper's Table 1.
-
-    Parameters
-    ----------
-    name : str
-        Label ("A".."H").
-    tool_material : {"HSS", "carbide"}
-        Cutter material.
-    diameter : float
-        Tool diameter [m].
-    flutes : int
-        Number of flutes.
-    spindle_speed : float
-        Spindle speed [rad/s].
-    feeds : tuple of float
-        Feeds per tooth [m] the tool wears (and, for continuous experiments, calibrates) at.
-    angles : tuple of (float, float)
-        Entry/exit angles [rad] it cuts at.
-    calibration_interval : float
-        Cut distance between calibrations [m]; 0 = calibrating continuously.
-    calibration_material : {"steel", "aluminium"}
-        Workpiece of the calibration cuts.
-    paper_mode : str
-        Dominant wear mode the paper reports ("FW", "CH", "FW+").
-    axial_depth : float
-        Axial depth of cut [m] (not in Table 1: 2.54 mm assumed).
-    nominal_calibrations : float
-        Median life in calibration intervals [-] (assumption, see the module notes).
-    """
-
-    name: str
-    tool_material: str
-    diameter: float
-    flutes: int
-    spindle_speed: float
-    feeds: tuple
-    angles: tuple
-    calibration_interval: float
-    calibration_material: str = "steel"
-    paper_mode: str = "FW"
-    axial_depth: float = 2.54e-3
-    nominal_calibrations: float = 16.0
-
-    @property
-    def continuous(self) -> bool:
-        """True when the tool calibrates continuously (interval 0)."""
-        return self.calibration_interval == 0.0
-
-    def cut(self, feed: float, angles: tuple) -> CutConditions:
-        """The cut at one feed per tooth [m] and (entry, exit) angles [rad].
-
-        Parameters
-        ----------
-        feed : float
-            Feed per tooth [m].
-        angles : tuple of float
-            Entry and exit angle [rad].
-
-        Returns
-        -------
-        CutConditions
-        """
-        return CutConditions(self.diameter, self.flutes, self.axial_depth, self.spindle_speed, feed, *angles)
-
-    def calibration_cuts(self) -> list[CutConditions]:
-        """The cuts of one calibration: all feeds x angles (continuous) or 4 feeds at the wear angles.
-
-        Returns
-        -------
-        list of CutConditions
-        """
-        if self.continuous:
-            return [self.cut(f, a) for a in self.angles for f in self.feeds]
-        return [self.cut(m * self.feeds[0], a) for a in self.angles for m in _CAL_FEEDS]
-
-    def wear_cut(self) -> CutConditions:
-        """The nominal wear condition (middle feed and angle).
-
-        Returns
-        -------
-        CutConditions
-        """
-        return self.cut(self.feeds[len(self.feeds) // 2], self.angles[len(self.angles) // 2])
-
-
-def section4_calibration() -> WearExperiment:
-    """The paper's Sec. 4 calibration test: a 12.7 mm end mill, eight radial immersions at four feeds.
-
-    Slot; down milling at 75, 50, 25 and 7 % immersion; up milling at 75, 50 and 25 % — on the
-    4-flute carbide tool of experiment C (2674 rpm), feeds 0.04-0.10 mm/tooth (assumed: the paper
-    gives neither the tool nor the feeds). Calibrated continuously (every cut is a calibration cut).
-
-    Returns
-    -------
-    WearExperiment
-    """
-    angles = ((0.0, math.pi),) + tuple((a * _DEG, math.pi) for a in (60, 90, 120, 150)) + \
-        tuple((0.0, a * _DEG) for a in (120, 90, 60))
-    return WearExperiment("S4", "carbide", 12.7e-3, 4, 2674 * _RPM, tuple(f * 1e-3 for f in (.04, .06, .08, .10)),
-                          angles, 0.0, paper_mode="-")
-
-
-def table1_experiments() -> dict[str, WearExperiment]:
-    """Experiments A-H of the paper's Table 1 (SI units; distances between calibrations read as metres).
-
-    Returns
-    -------
-    dict of str to WearExperiment
-    """
-    four = tuple((a * _DEG, math.pi) for a in (0, 60, 90, 120))
-    mm = 1e-3
-    return {
-        "A": WearExperiment("A", "HSS", 12.7 * mm, 1, 1068 * _RPM, tuple(f * mm for f in (.019, .028, .033, .040)),
-                            four, 0.0),
-        "B": WearExperiment("B", "HSS", 12.7 * mm, 1, 1528 * _RPM, (.053 * mm,), ((90 * _DEG, math.pi),), 0.152),
-        "C": WearExperiment("C", "carbide", 12.7 * mm, 4, 2674 * _RPM, (.076 * mm,), ((120 * _DEG, math.pi),),
-                            3.39, paper_mode="CH"),
-        "D": WearExperiment("D", "carbide", 12.7 * mm, 4, 4011 * _RPM, (.051 * mm,), ((120 * _DEG, math.pi),),
-                            3.39, paper_mode="CH"),
-        "E": WearExperiment("E", "HSS", 9.525 * mm, 1, 1068 * _RPM, tuple(f * mm for f in (.019, .028, .033, .040)),
-                            four, 0.0),
-        "F": WearExperiment("F", "carbide", 9.525 * mm, 1, 3055 * _RPM,
-                            tuple(f * mm for f in (.027, .030, .034, .038, .041)), four, 0.0, paper_mode="CH"),
-        "G": WearExperiment("G", "HSS", 7.9375 * mm, 1, 2444 * _RPM, (.0254 * mm,), ((0.0, math.pi),), 0.610,
-                            "aluminium"),
-        "H": WearExperiment("H", "HSS", 7.9375 * mm, 1, 3666 * _RPM, (.0254 * mm,), ((0.0, math.pi),), 0.610,
-                            "aluminium", paper_mode="FW+"),
-    }
 
 
 @dataclass(eq=False)
@@ -232,6 +95,18 @@ class ToolLife:
         Chipping events: (distance [m], depth [m]).
     reference_index : int
         Index, within a calibration, of the cut at the wear condition (for the percent-power indicator).
+    production : CutTable or None
+        The production passes between calibrations (at the wear condition, ``PASS_LENGTH`` each, with
+        ``distance`` [m] at the start of each pass) and their measured cutting power [W]; None for
+        experiments that calibrate continuously (every cut is a calibration cut). Measured from a random
+        stream of their own: the calibration cuts are the same with or without them.
+    production_spindle_power, production_air_power : ndarray
+        Measured mean spindle power in each production pass and in the air cut before it [W].
+    production_truth : dict of ndarray
+        Per production pass: ``distance`` [m], ``VB`` [m], ``chip_depth`` [m], ``Ktc`` [N/m^2], ``Kte``
+        [N/m] (steel, the tool's state during the pass); empty without production passes.
+    cut_truth : dict of ndarray
+        Per calibration cut (rows of ``table``): ``VB`` [m] and ``chip_depth`` [m] when it was cut.
     """
 
     experiment: WearExperiment
@@ -244,6 +119,11 @@ class ToolLife:
     failure_mode: str
     chips: list = field(default_factory=list)
     reference_index: int = 0
+    production: CutTable | None = None
+    production_spindle_power: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    production_air_power: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    production_truth: dict = field(default_factory=dict)
+    cut_truth: dict = field(default_factory=dict)
 
 
 class _Tool:
@@ -305,8 +185,13 @@ class _Tool:
             rate *= (cut.cutting_speed / 1.0) ** 4        # (V / 60 m/min)^4, 60 m/min = 1 m/s
         return rate
 
-    def advance(self, cut: CutConditions, seconds: float, wears: bool, clock: float, events: list) -> None:
-        """Cut for `seconds`; wear (if `wears`) and chip by sub-steps of at most 5 s."""
+    def advance(self, cut: CutConditions, seconds: float, wears: bool, clock: float, events: list,
+                trace: list | None = None) -> None:
+        """Cut for `seconds`; wear (if `wears`) and chip by sub-steps of at most 5 s.
+
+        `trace` (optional) receives ``(distance [m], VB [m], chip depth [m])`` after each sub-step; it
+        only records, so the tool's history is the same with or without it.
+        """
         if not wears or seconds <= 0:
             return
         steps = max(1, int(math.ceil(seconds / 5.0)))
@@ -322,18 +207,22 @@ class _Tool:
                 self.vb *= 1.0 - self.chip_rng.uniform(0.2, 0.5) * min(1.0, s / 0.05e-3)
                 events.append((clock + (i + 1) * dt * cut.feed_speed, s))
                 self.hazard_left = self.chip_rng.exponential()
+            if trace is not None:
+                trace.append((clock + (i + 1) * dt * cut.feed_speed, self.vb, self.chip))
 
     @property
     def failed(self) -> bool:
         return self.vb >= VB_LIMIT or self.chip >= CHIP_LIMIT
 
-    def coefficients(self, material: str) -> tuple[float, float]:
-        """True K_tc [N/m^2], K_te [N/m] now, cutting `material`."""
+    def coefficients(self, material: str, vb: float | None = None, chip: float | None = None) -> tuple[float, float]:
+        """True K_tc [N/m^2], K_te [N/m] now (or at flank wear `vb`, chip depth `chip` [m]), cutting `material`."""
+        vb = self.vb if vb is None else vb
+        chip = self.chip if chip is None else chip
         ktc0, kte0 = _K0[(self.exp.tool_material, material)]
         scale = 1.0 if material == "steel" else 0.35
-        soften = 1 + self.c_e * (self.vb / self.vb_acc) ** self.q
-        ktc = ktc0 * self.k_scatter * soften * (1 + self.alpha_c * self.chip)
-        kte = kte0 * self.kte_scatter + scale * self.tau * self.vb
+        soften = 1 + self.c_e * (vb / self.vb_acc) ** self.q
+        ktc = ktc0 * self.k_scatter * soften * (1 + self.alpha_c * chip)
+        kte = kte0 * self.kte_scatter + scale * self.tau * vb
         return ktc, kte
 
     def mean_power(self, cut: CutConditions, ktc: float, kte: float) -> float:
@@ -431,19 +320,22 @@ def simulate_tool_life(experiment: WearExperiment | str, seed: int = 0, *, max_c
     exp = _experiment(experiment)
     rng = np.random.default_rng([seed, *exp.name.encode()])
     tool = _Tool(exp, rng)
+    prod_rng = np.random.default_rng([seed, *exp.name.encode(), 3])   # production passes: a stream of their own
     prev_threads = numba.get_num_threads()
     numba.set_num_threads(1)                     # one revolution per call: threads cost more than they give
     try:
-        return _run(exp, seed, tool, rng, max_calibrations, cadence)
+        return _run(exp, seed, tool, rng, max_calibrations, cadence, prod_rng)
     finally:
         numba.set_num_threads(prev_threads)
 
 
-def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
+def _run(exp, seed, tool, rng, max_calibrations, cadence=None, prod_rng=None) -> ToolLife:
     cal_cuts = exp.calibration_cuts()
     wear_cut = exp.wear_cut()
     clock, minutes = 0.0, 0.0
     cuts, sp, ap, cal_no, dist, events = [], [], [], [], [], []
+    cut_truth = {"VB": [], "chip_depth": []}
+    production: list = []
     truth = {k: [] for k in ("distance", "VB", "chip_depth", "Ktc", "Kte")}
     failure = None
     for k in range(max_calibrations):
@@ -456,7 +348,7 @@ def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
             hard = rng.lognormal(0.0, 0.02)
             p_true = tool.mean_power(cut, ktc * hard, kte * hard)
             s, a = _measure(power_trace(p_true, _air_power(cut.spindle_speed, minutes), rng))
-            rows.append((cut, s, a, clock))
+            rows.append((cut, s, a, clock, tool.vb, tool.chip))
             seconds = CUT_SECONDS + cut.radius / cut.feed_speed       # entry, then the measured steady part
             tool.advance(cut, seconds, exp.calibration_material == "steel", clock, events)
             clock += seconds * cut.feed_speed
@@ -466,12 +358,12 @@ def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
                 break
         if failure is not None:
             if len(rows) == len(cal_cuts):           # the last calibration completed just at failure
-                _append(rows, k, cuts, sp, ap, cal_no, dist)
+                _append(rows, k, cuts, sp, ap, cal_no, dist, cut_truth)
             else:
                 for v in truth.values():
                     v.pop()
             break
-        _append(rows, k, cuts, sp, ap, cal_no, dist)
+        _append(rows, k, cuts, sp, ap, cal_no, dist, cut_truth)
         if exp.continuous:
             continue
         interval = exp.calibration_interval
@@ -484,13 +376,15 @@ def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
                                   "it must be > 0")
         seconds = interval / wear_cut.feed_speed
         steps = max(1, int(math.ceil(seconds / 30.0)))
+        start, start_minutes, trace = clock, minutes, []
         for _ in range(steps):
-            tool.advance(wear_cut, seconds / steps, True, clock, events)
+            tool.advance(wear_cut, seconds / steps, True, clock, events, trace)
             clock += seconds / steps * wear_cut.feed_speed
             minutes += seconds / steps / 60
             if tool.failed:
                 failure = clock
                 break
+        _passes(tool, wear_cut, start, start + interval, clock, start_minutes, trace, prod_rng, production)
         if failure is not None:
             break
     else:
@@ -499,17 +393,57 @@ def _run(exp, seed, tool, rng, max_calibrations, cadence=None) -> ToolLife:
     table = CutTable(tuple(cuts), np.array(sp) - np.array(ap), np.array(cal_no), np.array(dist),
                      name=f"experiment {exp.name}, seed {seed}")
     ref = (len(cal_cuts) // 2) if exp.continuous else 2
+    prod_table, prod_truth, prod_sp, prod_ap = None, {}, np.zeros(0), np.zeros(0)
+    if production:
+        cols = list(zip(*production))
+        prod_sp, prod_ap = np.array(cols[1]), np.array(cols[2])
+        prod_table = CutTable(tuple(cols[0]), prod_sp - prod_ap, distance=np.array(cols[3]),
+                              name=f"experiment {exp.name}, seed {seed}, production")
+        prod_truth = {k: np.array(v) for k, v in zip(("distance", "VB", "chip_depth", "Ktc", "Kte"), cols[3:])}
     return ToolLife(exp, seed, table, np.array(sp), np.array(ap), {k: np.array(v) for k, v in truth.items()},
-                    float(failure), mode, events, ref)
+                    float(failure), mode, events, ref, prod_table, prod_sp, prod_ap, prod_truth,
+                    {k: np.array(v) for k, v in cut_truth.items()})
 
 
-def _append(rows, k, cuts, sp, ap, cal_no, dist) -> None:
-    for cut, s, a, d in rows:
+def _append(rows, k, cuts, sp, ap, cal_no, dist, cut_truth) -> None:
+    for cut, s, a, d, vb, chip in rows:
         cuts.append(cut)
         sp.append(s)
         ap.append(a)
         cal_no.append(k)
         dist.append(d)
+        cut_truth["VB"].append(vb)
+        cut_truth["chip_depth"].append(chip)
+
+
+def _passes(tool, cut, start, end, reached, minutes, trace, rng, out) -> None:
+    """Measure the production passes of one interval between calibrations (appended to `out`).
+
+    The interval [start, end] m is cut as passes of ``PASS_LENGTH`` from its start (a last part shorter
+    than half a pass is not measured); a pass is measured when the tool got through it (``reached`` m:
+    the interval's end, or where the tool failed) at the mean state of the wear sub-steps inside it
+    (`trace`), with its own hardness scatter, air cut before it and sensor, from `rng` (the calibrations'
+    random stream is not touched).
+    """
+    if not trace:
+        return
+    d_trace = np.array([t[0] for t in trace])
+    j = 0
+    while True:
+        a, b = start + j * PASS_LENGTH, min(start + (j + 1) * PASS_LENGTH, end)
+        if b - a < 0.5 * PASS_LENGTH or b > reached + 1e-12:
+            break
+        inside = np.flatnonzero((d_trace > a) & (d_trace <= b + 1e-12))
+        if inside.size == 0:
+            inside = np.array([int(np.argmin(np.abs(d_trace - 0.5 * (a + b))))])
+        vb = float(np.mean([trace[i][1] for i in inside]))
+        chip = float(np.mean([trace[i][2] for i in inside]))
+        ktc, kte = tool.coefficients("steel", vb, chip)
+        hard = rng.lognormal(0.0, 0.02)
+        air = _air_power(cut.spindle_speed, minutes + (a - start) / cut.feed_speed / 60)
+        s, p_air = _measure(power_trace(tool.mean_power(cut, ktc * hard, kte * hard), air, rng))
+        out.append((cut, s, p_air, a, vb, chip, ktc, kte))
+        j += 1
 
 
 def simulate_calibration(experiment: WearExperiment | str, seed: int = 0, *, vb: float = 0.0,
