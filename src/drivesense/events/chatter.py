@@ -45,7 +45,7 @@ from drivesense.machine.milling import check_int, check_number
 from drivesense.events.detector import Detector, spindle_speed_of
 from drivesense.events.nc_guard import guard_source, process_steady
 
-__all__ = ["ChatterDetector"]
+__all__ = ["ChatterDetector", "drive_lines", "drive_share"]
 
 _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
@@ -261,6 +261,19 @@ def drive_share(fring: np.ndarray, head: int, fs: float, bands, length: int) -> 
 
     The drive's position-periodic lines (:func:`drive_lines`) pass the comb like chatter does; the
     statistic is judged without them.
+
+    Parameters
+    ----------
+    fring : ndarray
+        Ring of the band-passed comb output [N].
+    head : int
+        Index of the ring's next write (its last sample is ``head - 1``).
+    fs : float
+        Sample rate [Hz].
+    bands : sequence of (float, float)
+        Frequency bands [Hz].
+    length : int
+        Samples of the spectrum (<= the ring's size).
     """
     if not bands:
         return 0.0
