@@ -1,18 +1,17 @@
 """Wear as a live event (issue #31, item 5): each production cut's spindle power against the last calibration.
 
 Known truth from the tool-life simulator (its production passes and their true VB) and from exact
-power of the cutting model; the events layer's Event accepts the monitor's WearEvent field for field.
+power of the cutting model; its events are the detectors' Event record.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from drivesense.condition.wear_live import (LiveWearMonitor, LiveWearSettings, WearEvent, cut_power, remaining_life,
+from drivesense.condition.wear_live import (LiveWearMonitor, LiveWearSettings, cut_power, remaining_life,
                                             track_wear_live)
 from drivesense.errors import ConfigError, MissingChannelError, NotFittedError
 from drivesense.identify.coefficients import fit_cut_table
@@ -73,13 +72,14 @@ def test_event_fires_before_failure_on_a_simulated_life():
     assert rep.to_dict()["alarm"] and rep.to_dict()["events"][0]["kind"] == "wear"
 
 
-def test_wear_event_fits_the_events_layer():
+def test_a_wear_event_is_the_detectors_event_record_in_strict_json():
     from drivesense.events.detector import Event
 
-    event = WearEvent("wear", 12.0, "spindle", 0.7, 0.0, "live_wear", {"remaining_distance_m": math.inf})
-    as_event = Event(**dataclasses.asdict(event))
-    assert as_event.to_json() == event.to_json()
-    assert event.to_json()["evidence"]["remaining_distance_m"] is None    # strict JSON
+    life = simulate_tool_life("B", 1)
+    event = track_wear_live(life.table, life.production).events[0]
+    assert isinstance(event, Event)
+    inf = Event("wear", 12.0, "spindle", 0.7, 0.0, "live_wear", {"remaining_distance_m": math.inf})
+    assert inf.to_json()["evidence"]["remaining_distance_m"] is None      # strict JSON
 
 
 def test_remaining_life_on_a_linear_trend():

@@ -6,10 +6,10 @@ from drivesense.condition.cadence import AdaptiveCadence, CadenceProposal, Caden
 from drivesense.condition.runout import RunoutEstimate, estimate_runout
 from drivesense.condition.wear import (WearReport, WearState, WearTracker, WearTrackerSettings,
                                        percent_power_increase, track_wear)
-from drivesense.condition.wear_live import (CutResidual, LiveWearMonitor, LiveWearReport, LiveWearSettings, WearEvent,
+from drivesense.condition.wear_live import (CutResidual, LiveWearMonitor, LiveWearReport, LiveWearSettings,
                                             cut_power, remaining_life, track_wear_live)
 
 __all__ = ["WearTracker", "WearTrackerSettings", "WearState", "WearReport", "track_wear", "percent_power_increase",
            "AdaptiveCadence", "CadenceSettings", "CadenceProposal", "propose_interval",
-           "RunoutEstimate", "estimate_runout", "LiveWearMonitor", "LiveWearSettings", "LiveWearReport", "WearEvent",
+           "RunoutEstimate", "estimate_runout", "LiveWearMonitor", "LiveWearSettings", "LiveWearReport",
            "CutResidual", "track_wear_live", "cut_power", "remaining_life"]

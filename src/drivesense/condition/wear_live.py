@@ -15,8 +15,7 @@ monitor compares it with what the last calibration predicts:
 * **trend** of the level over cut distance: robust (Theil-Sen) slopes of the last ``window`` cuts
   and of the cuts before them, the noise of one cut from the earlier line (MAD).
 
-A ``wear`` event (the fields of :class:`drivesense.events.Event`; ``condition`` and ``events`` are one
-layer and do not import each other, so it is a :class:`WearEvent` of the same shape) is raised, once,
+A ``wear`` event (:class:`drivesense.event.Event`, the record every detector raises) is raised, once,
 when
 
 * the wear **accelerates**: the recent slope is ``acceleration`` times the earlier one, significantly;
@@ -33,16 +32,17 @@ recent mean length) until the level reaches ``failure_rise``, by the straight li
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from drivesense.condition.wear import WearTracker, WearTrackerSettings, check_settings
+from drivesense.event import Event
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError, NotFittedError
 from drivesense.identify.coefficients import TangentialFit, fit_cut_table
 from drivesense.machine.cutting_power import CutConditions, CutTable
 
-__all__ = ["LiveWearSettings", "WearEvent", "CutResidual", "LiveWearMonitor", "LiveWearReport", "track_wear_live",
+__all__ = ["LiveWearSettings", "CutResidual", "LiveWearMonitor", "LiveWearReport", "track_wear_live",
            "cut_power", "remaining_life"]
 
 _MAX_EARLY = 120      # cuts kept (evenly thinned) in the earlier Theil-Sen fit
@@ -98,52 +98,6 @@ class LiveWearSettings:
     def __post_init__(self) -> None:
         check_settings(self, "live wear", ("acceleration", "excess", "z", "failure_rise", "recent", "break_in"),
                        {"baseline": 1, "window": 3, "min_cuts": 2 * self.window})
-
-
-@dataclass(frozen=True)
-class WearEvent:
-    """A ``wear`` event, with the fields of :class:`drivesense.events.Event`.
-
-    ``Event(**dataclasses.asdict(e))`` turns it into the events layer's class (which this layer cannot
-    import).
-
-    Attributes
-    ----------
-    kind : str
-        Always ``"wear"``.
-    time_s : float
-        Time of the cut that raised it [s] (NaN when the cuts came without times).
-    axis : str
-        ``"spindle"`` (the statistic is spindle power).
-    confidence : float
-        How far the statistic went past its threshold, 0..1 [-].
-    latency_s : float
-        Declared latency [s]: 0 (raised at the end of the cut's measurement).
-    detector : str
-        Name of the monitor that raised it.
-    evidence : dict
-        Distance, level, residual, slopes, the rule, the predicted remaining distance [m] and cuts.
-    """
-
-    kind: str
-    time_s: float
-    axis: str
-    confidence: float
-    latency_s: float
-    detector: str
-    evidence: dict = field(default_factory=dict)
-
-    def to_json(self) -> dict:
-        """A strict-JSON dict (finite numbers only), as :meth:`drivesense.events.Event.to_json`.
-
-        Returns
-        -------
-        dict
-        """
-        fin = (lambda v: float(v) if math.isfinite(v) else None)  # noqa: E731
-        evidence = {k: (fin(v) if isinstance(v, float) else v) for k, v in self.evidence.items()}
-        return {"kind": self.kind, "time_s": fin(self.time_s), "axis": self.axis, "confidence": fin(self.confidence),
-                "latency_s": fin(self.latency_s), "detector": self.detector, "evidence": evidence}
 
 
 @dataclass(frozen=True)
@@ -257,7 +211,7 @@ class LiveWearMonitor:
         self.detector = str(detector)
         self.fits: list[TangentialFit] = []
         self.history: list[CutResidual] = []
-        self.events: list[WearEvent] = []
+        self.events: list[Event] = []
         self._ratios: list[float] = []
         self._x: list[float] = []
         self._keys: list[tuple] = []
@@ -279,7 +233,7 @@ class LiveWearMonitor:
         self._last_distance = d
         return d
 
-    def calibrate(self, fit: TangentialFit, distance: float, time_s: float = math.nan) -> list[WearEvent]:
+    def calibrate(self, fit: TangentialFit, distance: float, time_s: float = math.nan) -> list[Event]:
         """Take a new calibration: later cuts are predicted from its K_tc, K_te.
 
         Parameters
@@ -293,7 +247,7 @@ class LiveWearMonitor:
 
         Returns
         -------
-        list of WearEvent
+        list of Event
             The event, when the calibration tracker raises its alarm here (and no event came before).
         """
         if not isinstance(fit, TangentialFit):
@@ -309,7 +263,7 @@ class LiveWearMonitor:
         return []
 
     def push(self, cut: CutConditions, cutting_power: float, distance: float,
-             time_s: float = math.nan) -> tuple[CutResidual, list[WearEvent]]:
+             time_s: float = math.nan) -> tuple[CutResidual, list[Event]]:
         """Add one production cut.
 
         Parameters
@@ -327,7 +281,7 @@ class LiveWearMonitor:
         -------
         CutResidual
             The cut's residual, level and trend.
-        list of WearEvent
+        list of Event
             The event when this cut raised it (at most one per tool).
 
         Raises
@@ -402,7 +356,7 @@ class LiveWearMonitor:
         return {"remaining_distance_m": remaining, "remaining_cuts": cuts, "level": now, "slope_per_m": slope,
                 "failure_rise": self.settings.failure_rise}
 
-    def _rules(self, row: CutResidual, time_s: float) -> list[WearEvent]:
+    def _rules(self, row: CutResidual, time_s: float) -> list[Event]:
         s = self.settings
         n = len(self._x)
         if n - sum(self._in_base) < s.min_cuts:
@@ -442,8 +396,8 @@ class LiveWearMonitor:
                                                       "straight-line trend"})
         return []
 
-    def _raise(self, time_s: float, confidence: float, evidence: dict) -> list[WearEvent]:
-        event = WearEvent("wear", float(time_s), "spindle", float(min(max(confidence, 0.0), 1.0)), 0.0,
+    def _raise(self, time_s: float, confidence: float, evidence: dict) -> list[Event]:
+        event = Event("wear", float(time_s), "spindle", float(min(max(confidence, 0.0), 1.0)), 0.0,
                           self.detector, evidence)
         self.events.append(event)
         return [event]
@@ -457,7 +411,7 @@ class LiveWearReport:
     ----------
     cuts : list of CutResidual
         Every production cut, in order.
-    events : list of WearEvent
+    events : list of Event
         The ``wear`` events (at most one).
     calibrations : list of float
         Distance of each calibration [m].

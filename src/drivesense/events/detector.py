@@ -23,70 +23,19 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError
+from drivesense.errors import InvalidSignalError, MissingChannelError
+from drivesense.event import EVENT_KINDS, Event, finite_or_none as _finite
 from drivesense.nc_context import CONTEXT_CHANNELS, context_at
 from drivesense.recording import Recording
 from drivesense.timebase import check_fs
 
 __all__ = ["Event", "Detection", "Detector", "DetectorStream", "EVENT_KINDS", "spindle_speed_of", "feed_steady",
            "attach_latency", "events_to_json"]
-
-#: Kinds an event may have.
-EVENT_KINDS = ("breakage", "chipping", "chatter", "collision", "overload", "missing_tool", "limit", "wear")
-
-
-@dataclass(frozen=True)
-class Event:
-    """One detected process event.
-
-    Attributes
-    ----------
-    kind : str
-        One of :data:`EVENT_KINDS`.
-    time_s : float
-        Time the detector raised it [s] (on the force stream's time base).
-    axis : str
-        Force axis it was seen on (``"x"``), or ``"spindle"``.
-    confidence : float
-        How far the statistic went past its threshold, 0..1 (1: far) [-].
-    latency_s : float
-        Detection latency the detector declares [s] (the estimator's adds: :func:`attach_latency`).
-    detector : str
-        Name of the detector that raised it.
-    evidence : dict
-        What crossed (statistic, threshold, ratio, frequency...), JSON-safe numbers and strings.
-    """
-
-    kind: str
-    time_s: float
-    axis: str
-    confidence: float
-    latency_s: float
-    detector: str
-    evidence: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.kind not in EVENT_KINDS:
-            raise ConfigError(f"event kind must be one of {', '.join(EVENT_KINDS)}, got {self.kind!r}")
-        object.__setattr__(self, "confidence", float(min(max(self.confidence, 0.0), 1.0)))
-
-    def to_json(self) -> dict:
-        """A strict-JSON dict (finite numbers only)."""
-        evidence = {k: (_finite(v) if isinstance(v, float) else v) for k, v in self.evidence.items()}
-        return {"kind": self.kind, "time_s": _finite(self.time_s), "axis": self.axis,
-                "confidence": _finite(self.confidence), "latency_s": _finite(self.latency_s),
-                "detector": self.detector, "evidence": evidence}
-
-
-def _finite(value: float):
-    value = float(value)
-    return value if math.isfinite(value) else None
-
 
 def events_to_json(events: Sequence[Event], latency_s: float) -> dict:
     """The EVENTS.json document: ``{"events": [...], "latency_s": float}``.
