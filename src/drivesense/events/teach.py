@@ -27,13 +27,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from drivesense.errors import ConfigError, MissingChannelError, SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
 from drivesense.events.detector import Detector
 from drivesense.recording import Recording
 
-__all__ = ["TeachLimits", "teach", "TeachInDetector", "path_length"]
+__all__ = ["TeachLimits", "teach", "TeachInDetector", "PathMeter", "path_length", "PATH_CHORD_M"]
 
 _ALIGN = ("time", "path", "block")
 _FORMAT = "drivesense teach-in limits 1"
@@ -45,27 +46,85 @@ def _path_channels(names: Sequence[str]) -> list[str]:
     return sorted(c for c in names if c.endswith("_table_position"))
 
 
-def path_length(positions: Sequence[np.ndarray], start: float = 0.0, last: Sequence[float] | None = None
-                ) -> np.ndarray:
-    """Cumulative distance travelled along the given position channels [m].
+#: Chord of the path meter [m]: the path grows by straight steps of at least this length, so that the
+#: table's vibration and the scale's noise (nm to um, at every sample) add nothing to it.
+PATH_CHORD_M = 0.1e-3
+
+
+@njit(cache=True, nogil=True)
+def _chord_path(pos, anchor, acc, chord):  # pragma: no cover - compiled
+    """Path [m] at each sample: the chords so far plus the farthest the table has gone from the last chord's
+    end (never back: a bin must not be left and entered again on a vibration); ``acc``: [chords, farthest]."""
+    k, n = pos.shape
+    out = np.empty(n)
+    for i in range(n):
+        d2 = 0.0
+        for a in range(k):
+            d = pos[a, i] - anchor[a]
+            d2 += d * d
+        d = np.sqrt(d2)
+        if d >= chord:
+            acc[0] += d
+            acc[1] = 0.0
+            for a in range(k):
+                anchor[a] = pos[a, i]
+        elif d > acc[1]:
+            acc[1] = d
+        out[i] = acc[0] + acc[1]
+    return out
+
+
+class PathMeter:
+    """Distance travelled along the tool path [m], sample by sample, carried across chunks.
+
+    Summing every sample's step would add the table's vibration under the cut to the path, and more of it
+    the longer a run takes: a run slowed by an override would read millimetres further than the taught runs
+    at the same place of the part (2.9 mm against 0.6 mm after 17 s in one bench program).
+    The meter adds straight chords of at least ``chord`` instead.
+
+    Parameters
+    ----------
+    chord : float
+        Least chord [m].
+    """
+
+    def __init__(self, chord: float = PATH_CHORD_M) -> None:
+        self.chord = check_number(chord, "chord", positive=True)
+        self.anchor: np.ndarray | None = None
+        self.acc = np.zeros(2)
+
+    @property
+    def travelled(self) -> float:
+        """Path of the last chord's end [m] (the path so far, to within one chord)."""
+        return float(self.acc[0])
+
+    def advance(self, positions: Sequence[np.ndarray]) -> np.ndarray:
+        """The path at each of the next samples [m].
+
+        Parameters
+        ----------
+        positions : sequence of ndarray
+            Position per axis [m], equally long.
+        """
+        if not positions:
+            raise MissingChannelError("path alignment needs table-position channels (*_table_position)")
+        pos = np.ascontiguousarray(np.vstack([np.asarray(p, dtype=float) for p in positions]))
+        if pos.shape[1] == 0:
+            return np.zeros(0)
+        if self.anchor is None or self.anchor.size != pos.shape[0]:
+            self.anchor = pos[:, 0].copy()
+        return _chord_path(pos, self.anchor, self.acc, self.chord)
+
+
+def path_length(positions: Sequence[np.ndarray]) -> np.ndarray:
+    """Distance travelled along the given position channels [m] (:class:`PathMeter` over a whole run).
 
     Parameters
     ----------
     positions : sequence of ndarray
         Position per axis [m], equally long.
-    start : float
-        Distance already travelled before the first sample [m].
-    last : sequence of float, optional
-        Positions just before the first sample [m] (a stream's previous chunk).
     """
-    if not positions:
-        raise MissingChannelError("path alignment needs table-position channels (*_table_position)")
-    steps = np.zeros(positions[0].size)
-    for k, p in enumerate(positions):
-        prev = p[0] if last is None else last[k]
-        d = np.diff(np.concatenate([[prev], p]))
-        steps += d ** 2
-    return start + np.cumsum(np.sqrt(steps))
+    return PathMeter().advance(positions)
 
 
 @dataclass
@@ -198,7 +257,7 @@ class _BlockClock:
         self.key: tuple | None = None
         self.visits: dict = {}
         self.origin = self.done = 0.0          # position where the visit began; position so far
-        self.last: list | None = None
+        self.meter = PathMeter()
         self.samples = 0
 
     def advance(self, arrays: Mapping[str, np.ndarray]) -> tuple[list[tuple], np.ndarray, np.ndarray]:
@@ -207,9 +266,7 @@ class _BlockClock:
         n = block.size
         tool = np.asarray(arrays["tool_number"], dtype=float) if "tool_number" in arrays else np.zeros(n)
         if self.within == "path":
-            pos = [np.asarray(arrays[c], dtype=float) for c in _path_channels(list(arrays))]
-            s = path_length(pos, self.done, self.last)
-            self.last = [float(p[-1]) for p in pos] if n else self.last
+            s = self.meter.advance([np.asarray(arrays[c], dtype=float) for c in _path_channels(list(arrays))])
         else:
             s = (self.samples + np.arange(n)) / self.fs
         self.samples += n
@@ -424,7 +481,7 @@ class TeachInDetector(Detector):
         """
         k = len(self.limits.channels)
         state = {"fs": float(fs), "bin": 0, "sum": np.zeros(k), "count": 0, "feed": 0.0, "override": 0.0,
-                 "path": 0.0, "last": None, "out": 0, "samples": 0, "latched": False}
+                 "meter": PathMeter(), "out": 0, "samples": 0, "latched": False}
         if self.limits.align == "block":
             state["clock"] = _BlockClock(self.limits.within, fs)
         return state
@@ -451,11 +508,7 @@ class TeachInDetector(Detector):
         elif lim.align == "time":
             idx = np.floor((state["samples"] + np.arange(n)) / state["fs"] / lim.bin_width).astype(np.int64)
         else:
-            chans = _path_channels(arrays.keys())
-            pos = [np.asarray(arrays[c], dtype=float) for c in chans]
-            s = path_length(pos, state["path"], state["last"])
-            state["path"] = float(s[-1]) if n else state["path"]
-            state["last"] = [float(p[-1]) for p in pos] if n else state["last"]
+            s = state["meter"].advance([np.asarray(arrays[c], dtype=float) for c in _path_channels(arrays.keys())])
             idx = np.floor(s / lim.bin_width).astype(np.int64)
         state["samples"] += n
         values = np.vstack([np.abs(np.asarray(arrays[c], dtype=float)) for c in lim.channels])
