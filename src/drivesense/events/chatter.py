@@ -42,7 +42,7 @@ from numba import njit
 
 from drivesense.errors import ConfigError, SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
-from drivesense.events.detector import Detector, spindle_speed_of
+from drivesense.events.detector import Detector, RecentSamples, spindle_speed_of
 from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["ChatterDetector", "drive_lines", "drive_share"]
@@ -51,9 +51,6 @@ _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
  _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT) = range(24)
-#: A forced level that rose by more than this share over ``settle_revs`` is an abrupt change of engagement
-#: (an entry fills in more slowly); a fall by more than 15 % is the tool leaving the part.
-_RISE_LIMIT = 0.6
 #: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
 GUARDS = {1: "settling (a cut's start, a feed or spindle-speed change)",
           2: "forced level changing (an exit, an abrupt engagement change)",
@@ -89,8 +86,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, rise_limit, feed_ok,
-                  sc, ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc,
+                  ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
     """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
     chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
     n = force.size - off
@@ -189,7 +186,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
                 # a falling level is the tool leaving the part; a rising one is judged only when abrupt
                 # (an entry fills in steadily, and chatter often starts on the way in)
                 ratio = rf / levels[old_k]
-                sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else 0.15 * (ratio - 1.0) / rise_limit
+                sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else (ratio - 1.0) / 4.0
         if sc[_LEVEL] > 0.15:
             _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
@@ -530,8 +527,7 @@ class ChatterDetector(Detector):
         pos = 0
         while pos < n:
             done = pos + _chatter_loop(force, omega, fs, state["sos"], state["lp"], self.gate_n, self.threshold,
-                                       self.hold_revs, self.window, self.settle_revs,
-                                       _RISE_LIMIT, feed_ok, sc, state["ring"],
+                                       self.hold_revs, self.window, self.settle_revs, feed_ok, sc, state["ring"],
                                        state["fring"], state["levels"], stat, thr, held, pos, start, cand)
             if done < n or cand[0] > 0.0:
                 if cand[0] > 0.0:
@@ -570,8 +566,8 @@ class ChatterDetector(Detector):
                     cand[:] = 0.0
             pos = done
         if drive is not None:
-            keep = self.spectrum_samples(fs) + 1
-            state["drive"] = (drive[0], np.concatenate([state.get("drive", (None, np.zeros(0)))[1], drive[1]])[-keep:])
+            tail = state.setdefault("drive", RecentSamples(self.spectrum_samples(fs) + 1))
+            tail.push(n, {"drive": drive[1]})
         return events, stat, thr, held
 
     def _drive(self, arrays: Mapping[str, np.ndarray]) -> tuple[str, np.ndarray] | None:
@@ -590,7 +586,7 @@ class ChatterDetector(Detector):
         fs = state["fs"]
         length = self.spectrum_samples(fs)
         kind, values = drive
-        past = state.get("drive", (kind, np.zeros(0)))[1]
+        past = state["drive"].last("drive", length + 1) if "drive" in state else np.zeros(0)
         x = np.concatenate([past, values[:upto]])[-(length + 1):]
         parts = np.array_split(np.arange(x.size), 4)
         if kind == "position":       # the mean speed over each quarter of the window

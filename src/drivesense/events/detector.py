@@ -34,8 +34,8 @@ from drivesense.nc_context import CONTEXT_CHANNELS, context_at
 from drivesense.recording import Recording
 from drivesense.timebase import check_fs
 
-__all__ = ["Event", "Detection", "Detector", "DetectorStream", "EVENT_KINDS", "spindle_speed_of", "feed_steady",
-           "attach_latency", "events_to_json"]
+__all__ = ["Event", "Detection", "Detector", "DetectorStream", "RecentSamples", "EVENT_KINDS", "spindle_speed_of",
+           "feed_steady", "attach_latency", "events_to_json"]
 
 def events_to_json(events: Sequence[Event], latency_s: float) -> dict:
     """The EVENTS.json document: ``{"events": [...], "latency_s": float}``.
@@ -317,6 +317,70 @@ class Detector(ABC):
         return out.events
 
 
+class RecentSamples:
+    """The last ``keep`` samples of some channels, carried across chunks: each chunk is kept as it came (a copy,
+    never joined to the others), so that a long tail costs a chunk's copy per push, not the tail's.
+
+    Parameters
+    ----------
+    keep : int
+        Samples to keep at least [-].
+    """
+
+    def __init__(self, keep: int) -> None:
+        self.keep = int(keep)
+        self._chunks: list[tuple[int, dict[str, np.ndarray]]] = []
+        self._size = 0
+
+    def __bool__(self) -> bool:
+        return bool(self._chunks)
+
+    def push(self, n: int, arrays: Mapping[str, np.ndarray]) -> None:
+        """Keep the next ``n`` samples of ``arrays``.
+
+        Parameters
+        ----------
+        n : int
+            Samples in the chunk [-].
+        arrays : mapping of str to ndarray
+            The channels to keep, each ``n`` long [their units].
+        """
+        if n == 0:
+            return
+        self._chunks.append((n, {k: np.array(v, dtype=float) for k, v in arrays.items()}))
+        self._size += n
+        while len(self._chunks) > 1 and self._size - self._chunks[0][0] >= self.keep:
+            self._size -= self._chunks.pop(0)[0]
+
+    def at(self, index: int) -> tuple[dict[str, np.ndarray], int]:
+        """The chunk holding a sample kept, and the sample's index in it.
+
+        Parameters
+        ----------
+        index : int
+            The sample, counted back from the next push (-1: the last sample kept) [-]; one further back than
+            what is kept gives the oldest sample kept.
+        """
+        for n, arrays in reversed(self._chunks):
+            index += n
+            if index >= 0:
+                return arrays, index
+        return self._chunks[0][1], 0
+
+    def last(self, name: str, m: int) -> np.ndarray:
+        """The last ``m`` (or fewer) samples kept of a channel [its unit].
+
+        Parameters
+        ----------
+        name : str
+            The channel.
+        m : int
+            Samples wanted [-].
+        """
+        parts = [arrays[name] for _, arrays in self._chunks if name in arrays]
+        return np.concatenate(parts)[-m:] if parts else np.zeros(0)
+
+
 class DetectorStream:
     """Chunk-by-chunk detection with a carried state of constant size.
 
@@ -339,8 +403,7 @@ class DetectorStream:
         self._t0 = float(t0)
         self._t0_fixed = False
         # the context channels' last samples, for an event a detector emits after the chunk its sample was in
-        self._context_tail: dict[str, np.ndarray] = {}
-        self._context_keep = int(math.ceil(self.latency_s * self.fs)) + 1
+        self._context_tail = RecentSamples(int(math.ceil(self.latency_s * self.fs)) + 1)
 
     def shift_time(self, seconds: float) -> None:
         """Move the stream's clock by ``seconds`` [s]: the next chunk starts that much later than contiguous.
@@ -368,18 +431,7 @@ class DetectorStream:
         """The NC's context at the chunk's sample ``index`` (negative: that many samples before the chunk)."""
         if index >= 0 or not self._context_tail:
             return context_at(arrays, index)
-        size = len(next(iter(self._context_tail.values())))
-        return context_at(self._context_tail, size + index)
-
-    def _keep_context(self, arrays: Mapping[str, np.ndarray]) -> None:
-        """Keep the context channels' last samples (a detector's declared latency of them)."""
-        for name in CONTEXT_CHANNELS:
-            values = arrays.get(name)
-            if values is None:
-                continue
-            past = self._context_tail.get(name)
-            joined = values if past is None else np.concatenate([past, values])
-            self._context_tail[name] = joined[-self._context_keep:]
+        return context_at(*self._context_tail.at(index))
 
     def push(self, chunk: Recording | Mapping[str, Any]) -> Detection:
         """Detect in the next samples.
@@ -424,5 +476,5 @@ class DetectorStream:
                         evidence={**ev, **self._context(arrays, index - self.samples_seen)})
                   for index, kind, conf, ev in raw]
         self.samples_seen += n
-        self._keep_context(arrays)
+        self._context_tail.push(n, {k: arrays[k] for k in CONTEXT_CHANNELS if k in arrays})
         return Detection(events, stat, thr, held[0] if held else None)
