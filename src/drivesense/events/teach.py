@@ -93,11 +93,6 @@ class PathMeter:
         self.anchor: np.ndarray | None = None
         self.acc = np.zeros(2)
 
-    @property
-    def travelled(self) -> float:
-        """Path of the last chord's end [m] (the path so far, to within one chord)."""
-        return float(self.acc[0])
-
     def advance(self, positions: Sequence[np.ndarray]) -> np.ndarray:
         """The path at each of the next samples [m].
 
@@ -114,6 +109,11 @@ class PathMeter:
         if self.anchor is None or self.anchor.size != pos.shape[0]:
             self.anchor = pos[:, 0].copy()
         return _chord_path(pos, self.anchor, self.acc, self.chord)
+
+
+def _positions(arrays: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+    """The table positions [m] (the ``*_table_position`` channels) that measure the tool path."""
+    return [np.asarray(arrays[c], dtype=float) for c in _path_channels(list(arrays))]
 
 
 def path_length(positions: Sequence[np.ndarray]) -> np.ndarray:
@@ -266,7 +266,7 @@ class _BlockClock:
         n = block.size
         tool = np.asarray(arrays["tool_number"], dtype=float) if "tool_number" in arrays else np.zeros(n)
         if self.within == "path":
-            s = self.meter.advance([np.asarray(arrays[c], dtype=float) for c in _path_channels(list(arrays))])
+            s = self.meter.advance(_positions(arrays))
         else:
             s = (self.samples + np.arange(n)) / self.fs
         self.samples += n
@@ -508,7 +508,7 @@ class TeachInDetector(Detector):
         elif lim.align == "time":
             idx = np.floor((state["samples"] + np.arange(n)) / state["fs"] / lim.bin_width).astype(np.int64)
         else:
-            s = state["meter"].advance([np.asarray(arrays[c], dtype=float) for c in _path_channels(arrays.keys())])
+            s = state["meter"].advance(_positions(arrays))
             idx = np.floor(s / lim.bin_width).astype(np.int64)
         state["samples"] += n
         values = np.vstack([np.abs(np.asarray(arrays[c], dtype=float)) for c in lim.channels])
