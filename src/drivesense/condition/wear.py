@@ -34,8 +34,8 @@ import numpy as np
 from drivesense.errors import ConfigError, InvalidSignalError
 from drivesense.identify.coefficients import CutTable, TangentialFit, fit_cut_table
 
-__all__ = ["check_settings", "WearTrackerSettings", "WearState", "WearTracker", "WearReport", "track_wear",
-           "percent_power_increase"]
+__all__ = ["check_settings", "theil_sen_slope", "condition_key", "WearTrackerSettings", "WearState", "WearTracker",
+           "WearReport", "track_wear", "percent_power_increase"]
 
 STATES = ("new", "progressing", "near end of life")
 
@@ -293,7 +293,7 @@ class WearTracker:
         elif len(r) >= s.min_history:
             w = s.window
             signal, se, label = (ktc, stc, "K_tc") if mode == "chipping" else (f, fse, "F_ref")
-            earlier = _theil_sen(d[1:-w + 1], signal[1:-w + 1])
+            earlier = theil_sen_slope(d[1:-w + 1], signal[1:-w + 1])
             recent = _slope(d[-w:], signal[-w:])
             recent_se = _slope_se(d[-w:], se[-w:]) * k_now
             # level above the straight-line trend of the earlier calibrations (robust line, extrapolated)
@@ -320,8 +320,21 @@ def _t_factor(z: float):
     return lambda dof: float(t.ppf(p, max(dof, 1.0))) if math.isfinite(dof) else z
 
 
-def _theil_sen(x: np.ndarray, y: np.ndarray) -> float:
-    """Median of the pairwise slopes (robust to the break-in and to single outliers); NaN under 2 points."""
+def theil_sen_slope(x: np.ndarray, y: np.ndarray) -> float:
+    """Median of the pairwise slopes (robust to the break-in and to single outliers); NaN under 2 points.
+
+    Parameters
+    ----------
+    x : ndarray
+        Abscissae [their unit], e.g. cut distance [m].
+    y : ndarray
+        Values [their unit].
+
+    Returns
+    -------
+    float
+        The slope [unit of y per unit of x].
+    """
     i, j = np.triu_indices(x.size, 1)
     dx = x[j] - x[i]
     ok = dx > 0
@@ -436,7 +449,14 @@ class WearReport:
                 "history": rows}
 
 
-def _condition_key(cut) -> tuple:
+def condition_key(cut) -> tuple:
+    """What makes two cuts the same cut condition (tool, depths, speed, feed, engagement), for matching.
+
+    Parameters
+    ----------
+    cut : CutConditions
+        The cut [SI units].
+    """
     return tuple(round(v, 12) for v in (cut.diameter, cut.flutes, cut.axial_depth, cut.spindle_speed,
                                         cut.feed_per_tooth, cut.entry_angle, cut.exit_angle))
 
@@ -483,7 +503,7 @@ def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
     if not 0 <= ref_local < len(first):
         raise ConfigError(f"'reference' must index a cut of the first calibration (0..{len(first) - 1}), "
                           f"got {reference!r}")
-    ref_key = _condition_key(table.cuts[first[ref_local]])
+    ref_key = condition_key(table.cuts[first[ref_local]])
     fits = []
     from drivesense.errors import IdentificationError
 
@@ -492,7 +512,7 @@ def track_wear(table: CutTable, settings: WearTrackerSettings | None = None, *,
             fit = fit_cut_table(table, idx, warn=warn, runout=runout)
         except IdentificationError as exc:
             raise IdentificationError(f"calibration {k} (distance {d:.4g} m): {exc}") from None
-        match = [i for i in idx if _condition_key(table.cuts[i]) == ref_key]
+        match = [i for i in idx if condition_key(table.cuts[i]) == ref_key]
         tracker.update(fit, d, float(table.cutting_power[match[0]]) if match else None)
         fits.append(fit)
     return WearReport(tracker.history, fits, float(tracker.h_ref), int(first[ref_local]), table.name)

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivesense.condition.wear import WearTracker, WearTrackerSettings, check_settings
+from drivesense.condition.wear import (WearTracker, WearTrackerSettings, check_settings, condition_key,
+                                       theil_sen_slope)
 from drivesense.event import Event
 from drivesense.errors import ConfigError, InvalidSignalError, MissingChannelError, NotFittedError
 from drivesense.identify.coefficients import TangentialFit, fit_cut_table
@@ -162,25 +163,13 @@ def remaining_life(distance, level, failure_rise: float) -> tuple[float, float, 
     if x.size != y.size or x.size < 2:
         raise InvalidSignalError(f"remaining life needs two or more points with a level each, got {x.size} "
                                  f"distances and {y.size} levels")
-    slope = _theil_sen(x, y)
+    slope = theil_sen_slope(x, y)
     if not math.isfinite(slope):
         return math.inf, slope, float(np.median(y))
     now = float(np.median(y - slope * x)) + slope * float(x[-1])
     if now >= failure_rise:
         return 0.0, slope, now
     return (float(failure_rise - now) / slope if slope > 0 else math.inf), slope, now
-
-
-def _condition_key(cut: CutConditions) -> tuple:
-    return tuple(round(v, 12) for v in (cut.diameter, cut.flutes, cut.axial_depth, cut.spindle_speed,
-                                        cut.feed_per_tooth, cut.entry_angle, cut.exit_angle))
-
-
-def _theil_sen(x: np.ndarray, y: np.ndarray) -> float:
-    i, j = np.triu_indices(x.size, 1)
-    dx = x[j] - x[i]
-    ok = dx > 0
-    return float(np.median((y[j] - y[i])[ok] / dx[ok])) if np.any(ok) else float("nan")
 
 
 class LiveWearMonitor:
@@ -308,7 +297,7 @@ class LiveWearMonitor:
         residual = p / pred - 1.0
         slope = math.nan
         remaining = math.inf
-        key = _condition_key(cut)
+        key = condition_key(cut)
         base = self._beta.setdefault(key, [])
         in_base = not base or len(self._x) < s.baseline    # the first cuts, and the first cut of each condition
         if in_base:
@@ -371,8 +360,8 @@ class LiveWearMonitor:
             keep = np.unique(np.linspace(0, xe.size - 1, _MAX_EARLY).round().astype(int))
             xe, ye = xe[keep], ye[keep]
         xr, yr = x[-w:], y[-w:]
-        early = _theil_sen(xe, ye)
-        recent = _theil_sen(xr, yr)
+        early = theil_sen_slope(xe, ye)
+        recent = theil_sen_slope(xr, yr)
         if not (math.isfinite(early) and math.isfinite(recent)):
             return []
         icpt = float(np.median(ye - early * xe))
