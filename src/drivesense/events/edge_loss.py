@@ -129,32 +129,34 @@ def _design(g: np.ndarray, teeth: int, offsets: np.ndarray) -> tuple[np.ndarray,
     Tooth ``m``'s chip is ``sin phi + offsets[m]`` (runout moves each tooth's edge in or out by a constant,
     in feeds per tooth), its force that chip times the cutting pulse plus the edge pulse.
     """
-    nb = g.shape[1]
+    nb = g.shape[-1]
     per = nb // teeth
-
-    def tooth(m):
-        return np.stack([g[0] + offsets[m] * g[2], g[1] + offsets[m] * g[3], g[2], g[3]])
-
-    tot = np.zeros_like(g)
-    for m in range(teeth):
-        tot += np.roll(tooth(m), m * per, axis=1)
-    t0 = tooth(0)
+    turned = g[..., (np.arange(nb)[None, :] - per * np.arange(teeth)[:, None]) % nb]   # (..., 4, teeth, nb)
+    tot = turned.sum(axis=-2)
+    tot[..., :2, :] += np.einsum("...ktn,t->...kn", turned[..., 2:, :, :], offsets)
+    t0 = g.copy()
+    t0[..., :2, :] += offsets[0] * g[..., 2:, :]
     lost = -t0
-    lost[:2] += np.roll(t0[:2], per, axis=1)
-    m0 = np.concatenate([tot, tot], axis=1).T
-    m1 = np.concatenate([np.zeros_like(tot), lost], axis=1).T
+    lost[..., :2, :] += np.roll(t0[..., :2, :], per, axis=-1)
+    m0 = np.swapaxes(np.concatenate([tot, tot], axis=-1), -1, -2)
+    m1 = np.swapaxes(np.concatenate([np.zeros_like(tot), lost], axis=-1), -1, -2)
     return m0, m1
 
 
 def _scan(m0, m1, y, losses):
-    """Least squares over the coefficients for every loss and every column of ``y``: (residual, loss index)."""
-    a00, a01, a11 = m0.T @ m0, m0.T @ m1, m1.T @ m1
-    b0, b1 = m0.T @ y, m1.T @ y
-    ridge = 1e-9 * (np.trace(a00) + 1e-300) * np.eye(4)
-    k = a00[None] + losses[:, None, None] * (a01 + a01.T)[None] + (losses ** 2)[:, None, None] * a11[None] + ridge
-    rhs = b0[None] + losses[:, None, None] * b1[None]
+    """Least squares over the coefficients for every loss and every column of ``y``: (residual, coefficients).
+
+    ``m0`` and ``m1`` may carry leading batch axes (one per grid point); the results then carry them too.
+    """
+    t = np.swapaxes
+    a00, a01, a11 = t(m0, -1, -2) @ m0, t(m0, -1, -2) @ m1, t(m1, -1, -2) @ m1
+    b0, b1 = t(m0, -1, -2) @ y, t(m1, -1, -2) @ y
+    ls = losses[:, None, None]
+    ridge = 1e-9 * (np.trace(a00, axis1=-2, axis2=-1)[..., None, None, None] + 1e-300) * np.eye(4)
+    k = a00[..., None, :, :] + ls * (a01 + t(a01, -1, -2))[..., None, :, :] + ls ** 2 * a11[..., None, :, :] + ridge
+    rhs = b0[..., None, :, :] + ls * b1[..., None, :, :]
     coef = np.linalg.solve(k, rhs)
-    res = np.sum(y * y, axis=0)[None] - np.sum(rhs * coef, axis=1)
+    res = np.sum(y * y, axis=0) - np.sum(rhs * coef, axis=-2)
     return res, coef
 
 
@@ -197,8 +199,8 @@ def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) 
     order = None
     for _ in range(2):
         # the grid with the chip offsets held, then the offsets, the pulse and the loss refined in turn
-        lo, hi, lag, r, loss, res, order = _grid(y, nb, teeth, offsets, order)
-        g = _bases(nb, lo, hi, lag)
+        p, r, loss, res, order = _grid(y, nb, teeth, offsets, order)
+        g = _grid_tables(nb, teeth)[1][p]
         yr = y[:, r:r + 1]
         for _ in range(3):
             _, coef = _scan(*_design(g, teeth, offsets), yr, np.array([loss]))
@@ -206,22 +208,42 @@ def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) 
             rr, coef = _scan(*_design(g, teeth, offsets), yr, fine)
             li = int(np.argmin(rr[:, 0]))
             loss, res = float(fine[li]), float(rr[li, 0])
+    lo, hi, lag = _grid_tables(nb, teeth)[0][p]
     resid = math.sqrt(max(res, 0.0) / max(float(np.sum(yr ** 2)), 1e-300))
     return EdgeLossFit(edge_loss=float(min(max(loss, 0.0), 1.0)), tooth_angle_deg=float(r * 360.0 / nb),
                        engagement_deg=(float(np.rad2deg(lo)), float(np.rad2deg(hi))), lag_deg=float(np.rad2deg(lag)),
                        residual=resid)
 
 
+_PAIRS = np.triu_indices(8)
+
+
 @functools.lru_cache(maxsize=16)
 def _grid_tables(nb: int, teeth: int):
-    """Every grid point's engagement and lag with its design for equal teeth (no runout), kept per (nb, teeth)."""
+    """Every grid point's engagement and lag with its design for equal teeth (no runout), kept per (nb, teeth).
+
+    The residual of the least squares at loss ``l`` is ``y'y - c' A_l c`` with ``c = (M0'y, M1'y)`` and
+    ``A_l`` built from ``K_l^-1``; ``K_l`` does not depend on the data, so the weights of the 36 products
+    of ``c`` are kept here for every point and loss.
+    """
     angles = np.deg2rad(np.arange(0.0, 180.0 + 1e-9, _ANGLE_STEP_DEG))
     points = [(lo, hi, lag) for lo, hi in itertools.combinations(angles, 2) for lag in np.deg2rad(_LAGS_DEG)]
     zero = np.zeros(teeth)
-    m0s, m1s = zip(*(_design(_bases(nb, lo, hi, lag), teeth, zero) for lo, hi, lag in points))
+    bases = np.stack([_bases(nb, lo, hi, lag) for lo, hi, lag in points])           # (P, 4, nb)
+    m0s, m1s = zip(*(_design(g, teeth, zero) for g in bases))
     m0, m1 = np.stack(m0s), np.stack(m1s)                                 # (P, 2nb, 4)
     t = np.swapaxes
-    return points, m0, m1, t(m0, 1, 2) @ m0, t(m0, 1, 2) @ m1, t(m1, 1, 2) @ m1
+    a00, a01, a11 = t(m0, 1, 2) @ m0, t(m0, 1, 2) @ m1, t(m1, 1, 2) @ m1
+    ls = _LOSSES[None, :, None, None]
+    ridge = 1e-9 * (np.trace(a00, axis1=1, axis2=2)[:, None, None, None] + 1e-300) * np.eye(4)
+    ki = np.linalg.inv(a00[:, None] + ls * (a01 + t(a01, 1, 2))[:, None] + ls ** 2 * a11[:, None] + ridge)
+    a = np.concatenate([np.concatenate([ki, ls * ki], axis=3), np.concatenate([ls * ki, ls ** 2 * ki], axis=3)],
+                       axis=2)                                            # (P, L, 8, 8)
+    i, j = _PAIRS
+    w = a[:, :, i, j] * np.where(i == j, 1.0, 2.0)                        # (P, L, 36)
+    cols = np.concatenate([t(m0, 1, 2), t(m1, 1, 2)], axis=1)             # (P, 8, 2nb)
+    cols = np.ascontiguousarray(t(cols, 0, 1).reshape(-1, m0.shape[1]))   # coefficient-major rows
+    return points, bases, cols, np.ascontiguousarray(w)
 
 
 def _grid(y, nb, teeth, offsets, order=None, keep=12):
@@ -230,31 +252,22 @@ def _grid(y, nb, teeth, offsets, order=None, keep=12):
 
     With offsets (runout) only the ``keep`` best grid points of the fit without them (``order``) are tried.
     """
-    points, m0, m1, a00, a01, a11 = _grid_tables(nb, teeth)
+    points, bases, cols, w = _grid_tables(nb, teeth)
     if order is not None and np.any(offsets):
-        cand = []
-        for p in order[:keep]:
-            lo, hi, lag = points[p]
-            r2, _ = _scan(*_design(_bases(nb, lo, hi, lag), teeth, offsets), y, _LOSSES)
-            cand.append((float(r2.min()), int(p), int(np.argmin(r2))))
-        best, p, at = min(cand)
-        li, r = np.unravel_index(at, (len(_LOSSES), nb))
-        lo, hi, lag = points[p]
-        return lo, hi, lag, int(r), float(_LOSSES[li]), best, order
-    t = np.swapaxes
-    b0, b1 = t(m0, 1, 2) @ y, t(m1, 1, 2) @ y                              # (P, 4, nb)
-    ls = _LOSSES[None, :, None, None]
-    ridge = 1e-9 * (np.trace(a00, axis1=1, axis2=2)[:, None, None, None] + 1e-300) * np.eye(4)
-    k = a00[:, None] + ls * (a01 + t(a01, 1, 2))[:, None] + ls ** 2 * a11[:, None] + ridge
-    rhs = b0[:, None] + ls * b1[:, None]                                  # (P, L, 4, nb)
-    coef = np.linalg.inv(k) @ rhs
-    res = np.sum(y * y, axis=0) - np.sum(rhs * coef, axis=2)              # (P, L, nb)
+        tried = order[:keep]
+        r2, _ = _scan(*_design(bases[tried], teeth, offsets), y, _LOSSES)        # (keep, L, nb)
+        k, li, r = np.unravel_index(int(np.argmin(r2)), r2.shape)
+        return int(tried[k]), int(r), float(_LOSSES[li]), float(r2[k, li, r]), order
+    c = (cols @ y).reshape(8, len(points), nb)
+    prod = np.empty((len(_PAIRS[0]), len(points), nb))
+    for k, (i, j) in enumerate(zip(*_PAIRS)):
+        np.multiply(c[i], c[j], out=prod[k])
+    res = np.sum(y * y, axis=0) - w @ np.swapaxes(prod, 0, 1)             # (P, L, nb)
     flat = res.reshape(len(points), -1)
     order = np.argsort(flat.min(axis=1))
     p = int(order[0])
     li, r = np.unravel_index(int(np.argmin(flat[p])), (len(_LOSSES), nb))
-    lo, hi, lag = points[p]
-    return lo, hi, lag, int(r), float(_LOSSES[li]), float(flat[p].min()), order
+    return p, int(r), float(_LOSSES[li]), float(flat[p].min()), order
 
 
 def _fit_offsets(g, coef, teeth, loss, y, offsets):
