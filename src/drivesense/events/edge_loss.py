@@ -20,8 +20,11 @@ leaves: its cutting part grows by ``L`` times the lost tooth's::
 (``S`` a shift by one pitch, ``C`` and ``E`` the cutting and edge pulses;
 runout gives each tooth's chip a constant offset, ``(sin phi + rho_m)`` in feeds
 per tooth, which ``b_m C`` stands for here).  The engagement,
-the lag and the tooth's place are searched on a grid, the four coefficients of
-``C`` and ``E`` and the loss ``L`` by least squares on both patterns together;
+the lag and the tooth's place are searched on a grid (every other engagement
+limit first, then the neighbours of the best), the four coefficients of
+``C`` and ``E`` and the loss ``L`` by least squares on both patterns together
+(for every grid point and loss the normal equations' inverse does not depend
+on the data and is kept);
 then the chip offsets and the rest are refined in turn.  The tooth-pass
 sum alone (``base``) cannot tell one tooth's pulse from its overlap with the
 others' (slotting, many teeth); the loss of one tooth and the chip carried to
@@ -45,6 +48,9 @@ _ANGLE_STEP_DEG = 15.0
 _LAGS_DEG = (0.0, 10.0, 20.0, 35.0, 50.0)
 _LOSSES = np.linspace(0.0, 1.3, 14)
 _SUB = 8
+#: The engagement grid is searched coarse first (every other limit): around this many of its best points
+#: the fine grid's neighbours (one step of each limit and of the lag) are tried.
+_COARSE_KEEP = 4
 
 
 @dataclass(frozen=True)
@@ -227,7 +233,12 @@ def _grid_tables(nb: int, teeth: int):
     of ``c`` are kept here for every point and loss.
     """
     angles = np.deg2rad(np.arange(0.0, 180.0 + 1e-9, _ANGLE_STEP_DEG))
-    points = [(lo, hi, lag) for lo, hi in itertools.combinations(angles, 2) for lag in np.deg2rad(_LAGS_DEG)]
+    steps = [(a, b, c) for a, b in itertools.combinations(range(angles.size), 2) for c in range(len(_LAGS_DEG))]
+    points = [(angles[a], angles[b], np.deg2rad(_LAGS_DEG[c])) for a, b, c in steps]
+    at = {s: p for p, s in enumerate(steps)}
+    coarse = np.array([p for p, (a, b, c) in enumerate(steps) if a % 2 == 0 and b % 2 == 0])
+    near = [np.array(sorted({at[(a + i, b + j, c + k)] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                             if (a + i, b + j, c + k) in at})) for a, b, c in steps]
     zero = np.zeros(teeth)
     bases = np.stack([_bases(nb, lo, hi, lag) for lo, hi, lag in points])           # (P, 4, nb)
     m0s, m1s = zip(*(_design(g, teeth, zero) for g in bases))
@@ -241,9 +252,17 @@ def _grid_tables(nb: int, teeth: int):
                        axis=2)                                            # (P, L, 8, 8)
     i, j = _PAIRS
     w = a[:, :, i, j] * np.where(i == j, 1.0, 2.0)                        # (P, L, 36)
-    cols = np.concatenate([t(m0, 1, 2), t(m1, 1, 2)], axis=1)             # (P, 8, 2nb)
-    cols = np.ascontiguousarray(t(cols, 0, 1).reshape(-1, m0.shape[1]))   # coefficient-major rows
-    return points, bases, cols, np.ascontiguousarray(w)
+    cols = np.ascontiguousarray(np.concatenate([t(m0, 1, 2), t(m1, 1, 2)], axis=1))   # (P, 8, 2nb)
+    return points, bases, cols, np.ascontiguousarray(w), coarse, near
+
+
+def _residuals(y, cols, w, sub):
+    """Residuals (S, L, nb) of the grid points ``sub`` for every loss and every turn (column of ``y``)."""
+    c = np.swapaxes((cols[sub] @ y), 0, 1)                                # (8, S, nb)
+    prod = np.empty((len(_PAIRS[0]), len(sub), y.shape[1]))
+    for k, (i, j) in enumerate(zip(*_PAIRS)):
+        np.multiply(c[i], c[j], out=prod[k])
+    return np.sum(y * y, axis=0) - w[sub] @ np.swapaxes(prod, 0, 1)
 
 
 def _grid(y, nb, teeth, offsets, order=None, keep=12):
@@ -252,22 +271,22 @@ def _grid(y, nb, teeth, offsets, order=None, keep=12):
 
     With offsets (runout) only the ``keep`` best grid points of the fit without them (``order``) are tried.
     """
-    points, bases, cols, w = _grid_tables(nb, teeth)
+    points, bases, cols, w, coarse, near = _grid_tables(nb, teeth)
     if order is not None and np.any(offsets):
         tried = order[:keep]
         r2, _ = _scan(*_design(bases[tried], teeth, offsets), y, _LOSSES)        # (keep, L, nb)
         k, li, r = np.unravel_index(int(np.argmin(r2)), r2.shape)
         return int(tried[k]), int(r), float(_LOSSES[li]), float(r2[k, li, r]), order
-    c = (cols @ y).reshape(8, len(points), nb)
-    prod = np.empty((len(_PAIRS[0]), len(points), nb))
-    for k, (i, j) in enumerate(zip(*_PAIRS)):
-        np.multiply(c[i], c[j], out=prod[k])
-    res = np.sum(y * y, axis=0) - w @ np.swapaxes(prod, 0, 1)             # (P, L, nb)
-    flat = res.reshape(len(points), -1)
-    order = np.argsort(flat.min(axis=1))
+    rough = _residuals(y, cols, w, coarse).reshape(coarse.size, -1)
+    best = coarse[np.argsort(rough.min(axis=1))[:_COARSE_KEEP]]
+    sub = np.setdiff1d(np.concatenate([near[p] for p in best]), coarse)
+    flat = np.concatenate([rough, _residuals(y, cols, w, sub).reshape(sub.size, -1)])
+    ids = np.concatenate([coarse, sub])
+    ranked = np.argsort(flat.min(axis=1))
+    order, row = ids[ranked], flat[ranked[0]]
     p = int(order[0])
-    li, r = np.unravel_index(int(np.argmin(flat[p])), (len(_LOSSES), nb))
-    return p, int(r), float(_LOSSES[li]), float(flat[p].min()), order
+    li, r = np.unravel_index(int(np.argmin(row)), (len(_LOSSES), nb))
+    return p, int(r), float(_LOSSES[li]), float(row.min()), order
 
 
 def _fit_offsets(g, coef, teeth, loss, y, offsets):
