@@ -21,7 +21,11 @@ them.  It becomes an event when the last ~0.4 s of force hold a spectral line
 of its own between the spindle harmonics (``prominence`` times their median),
 found again at the same frequency a revolution (``recheck_revs``, at least
 ``recheck_s``) later (the line of a transient moves or goes); that line's
-frequency is the chatter frequency reported.
+frequency is the chatter frequency reported.  A transient -- the tool leaving
+the part, a step of the pattern -- makes the comb's output jump within a
+revolution and then die away, where chatter grows from the noise and holds: a
+candidate whose comb RMS has fallen below ``transient_decay`` of its peak over
+the last ``settle_revs`` is no chatter.
 
 The drive's own lines are no chatter: a measuring error that repeats every
 ``p`` of the axis's travel (the motor encoder's signal period, ``pitches_m``)
@@ -43,6 +47,7 @@ from numba import njit
 from drivesense.errors import ConfigError, SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
 from drivesense.events.detector import Detector, RecentSamples, spindle_speed_of
+from drivesense.events.chatter_spectrum import drive_lines, drive_share, spectral_line
 from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["ChatterDetector", "drive_lines", "drive_share"]
@@ -50,11 +55,12 @@ __all__ = ["ChatterDetector", "drive_lines", "drive_share"]
 _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
- _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT) = range(24)
+ _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT, _PEAK) = range(25)
 #: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
 GUARDS = {1: "settling (a cut's start, a feed or spindle-speed change)",
           2: "forced level changing (an exit, an abrupt engagement change)",
-          3: "above the threshold for less than hold_revs, or no spectral line of its own"}
+          3: "above the threshold for less than hold_revs, or no spectral line of its own",
+          4: "a transient: the comb's output has fallen from a peak in the last settle_revs (an exit, a step)"}
 
 
 @njit(cache=True, nogil=True)
@@ -86,8 +92,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, feed_ok, sc,
-                  ring, fring, levels, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, decay, feed_ok,
+                  sc, ring, fring, levels, peaks, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
     """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
     chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
     n = force.size - off
@@ -165,7 +171,9 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             sc[_CUTFOR] = 0.0
             continue
         sc[_AIRFOR] = 0.0
-        r = math.sqrt(max(sc[_EE] - sc[_EN], 0.0) / 6.0) / rf
+        comb = max(sc[_EE] - sc[_EN], 0.0)
+        sc[_PEAK] = max(sc[_PEAK], comb)
+        r = math.sqrt(comb / 6.0) / rf
         stat[i] = r
         thr_out[i] = threshold
         # the tool must have cut for settle_revs at a steady feed (the first revolutions of an entry and a
@@ -180,6 +188,8 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             sc[_REVPH] -= _TWO_PI
             k = int(sc[_LHEAD]) % levels.size       # _LHEAD counts revolutions; the ring wraps
             levels[k] = rf
+            peaks[k] = sc[_PEAK]                    # the comb's largest power in that revolution
+            sc[_PEAK] = 0.0
             sc[_LHEAD] += 1.0
             old_k = (k - int(settle_revs) + levels.size) % levels.size
             if sc[_LHEAD] > settle_revs and levels[old_k] > 0.0:
@@ -207,6 +217,18 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             sc[_QUIET] += 1.0
             if r < 0.5 * threshold and sc[_QUIET] > max(settle_revs * delay, fs):
                 sc[_LATCH] = 0.0          # re-armed only once the chatter has clearly gone
+        if sc[_HOLD] >= hold_revs * delay and sc[_LATCH] == 0.0 and decay > 0.0:
+            # a transient (a part's exit, a step of the pattern) jumps within a revolution and then dies
+            # away; chatter grows from the noise and holds: a comb below decay^2 of its power's peak over
+            # the last settle_revs is no chatter
+            top = sc[_PEAK]
+            for q in range(1, min(int(settle_revs), int(sc[_LHEAD])) + 1):
+                top = max(top, peaks[(int(sc[_LHEAD]) - q) % peaks.size])
+            if comb < decay * decay * top:
+                _unconfirmed(sc, held, start, i)
+                sc[_HOLD] = 0.0
+                held[i] = 4.0
+                continue
         if sc[_HOLD] >= hold_revs * delay and sc[_LATCH] == 0.0:
             # a candidate: the caller checks the spectrum and sets the latch (or the hold back to zero)
             cand[0] = r
@@ -214,109 +236,6 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             cand[2] = w
             return m + 1
     return n
-
-
-def drive_lines(speeds: np.ndarray, pitches, tooth_hz: float | None, pad_hz: float) -> list[tuple[float, float]]:
-    """Frequency bands [Hz] where the drive's position-periodic error puts lines: ``k |v| / p``.
-
-    A measuring error that repeats every ``p`` of travel (the motor encoder's
-    signal period) is a line at ``|v| / p`` and its second harmonic in the force
-    estimate; the cut's tooth passes modulate it, so the lines one tooth-pass
-    frequency to either side count too.  An override moves them through the
-    chatter band.
-
-    Parameters
-    ----------
-    speeds : ndarray
-        The axis speeds over the spectrum's window (its parts) [m/s]; their range sets the bands' width.
-    pitches : sequence of float
-        The error's periods of travel [m].
-    tooth_hz : float, optional
-        Tooth-pass frequency [Hz] (None: the sidebands are not known).
-    pad_hz : float
-        Added to either side of every band [Hz] (the spectrum's resolution).
-    """
-    if not len(pitches) or speeds.size == 0:
-        return []
-    lo, hi = float(np.min(np.abs(speeds))), float(np.max(np.abs(speeds)))
-    shifts = (0.0,) if not tooth_hz else (-tooth_hz, 0.0, tooth_hz)
-    bands = []
-    for p in pitches:
-        for k in (1, 2):
-            for m in shifts:
-                a, b = k * lo / p + m, k * hi / p + m
-                if b < 0.0:
-                    a, b = -b, -a
-                elif a < 0.0:
-                    a, b = 0.0, max(-a, b)
-                bands.append((a - pad_hz, b + pad_hz))
-    return bands
-
-
-def drive_share(fring: np.ndarray, head: int, fs: float, bands, length: int) -> float:
-    """The share [-] of the comb output's power (its last ``length`` samples) that lies within ``bands`` [Hz].
-
-    The drive's position-periodic lines (:func:`drive_lines`) pass the comb like chatter does; the
-    statistic is judged without them.
-
-    Parameters
-    ----------
-    fring : ndarray
-        Ring of the band-passed comb output [N].
-    head : int
-        Index of the ring's next write (its last sample is ``head - 1``).
-    fs : float
-        Sample rate [Hz].
-    bands : sequence of (float, float)
-        Frequency bands [Hz].
-    length : int
-        Samples of the spectrum (<= the ring's size).
-    """
-    if not bands:
-        return 0.0
-    cap = fring.size
-    x = fring[(head - length + np.arange(length)) % cap]
-    power = np.abs(np.fft.rfft(x * np.hanning(length))) ** 2
-    freq = np.fft.rfftfreq(length, 1.0 / fs)
-    inside = np.zeros(freq.size, dtype=bool)
-    for a, b in bands:
-        inside |= (freq >= a) & (freq <= b)
-    total = float(power.sum())
-    return float(power[inside].sum() / total) if total > 0 else 0.0
-
-
-def _spectral_check(ring: np.ndarray, head: int, fs: float, omega: float, lowest_hz: float, highest_hz: float,
-                    length: int, prominence: float, exclude=(), bands=()) -> tuple[bool, float, float]:
-    """Is there a narrow peak between the spindle harmonics?  (ok, its frequency [Hz], its prominence [-]).
-
-    The last ``length`` force samples, Hann-windowed: the largest spectral line
-    above ``lowest_hz`` that lies more than three bins (and 10 % of the rotation
-    frequency) from every spindle harmonic, against the median of those lines.
-    A drifting pattern (an exit, a feed ramp) leaves sidebands next to the
-    harmonics; chatter is a line of its own.  Lines within 10 % of ``exclude``
-    (the feed drive's own modes, which ring in the estimate after a force
-    step) do not count, nor lines within ``bands`` (:func:`drive_lines`).
-    """
-    cap = ring.size
-    x = ring[(head - length + np.arange(length)) % cap]
-    x = x - x.mean()
-    spec = np.abs(np.fft.rfft(x * np.hanning(length)))
-    freq = np.fft.rfftfreq(length, 1.0 / fs)
-    f_rev = omega / _TWO_PI
-    df = freq[1]
-    dist = np.abs(freq - f_rev * np.round(freq / f_rev))
-    keep = (freq >= lowest_hz) & (freq <= highest_hz) & (dist > max(3.0 * df, 0.1 * f_rev))
-    for f_mode in exclude:                     # the drive's own modes ring after any force step
-        keep &= np.abs(freq - f_mode) > 0.1 * f_mode
-    for a, b in bands:                         # the drive's position-periodic error, moved by the feed
-        keep &= (freq < a) | (freq > b)
-    if np.count_nonzero(keep) < 8:
-        return False, 0.0, 0.0
-    lines = spec[keep]
-    k = int(np.argmax(lines))
-    floor = float(np.median(lines))
-    ratio = float(lines[k] / floor) if floor > 0 else np.inf
-    return ratio >= prominence, float(freq[keep][k]), ratio
 
 
 class ChatterDetector(Detector):
@@ -363,6 +282,9 @@ class ChatterDetector(Detector):
         (:func:`drive_lines`).
     teeth : int, optional
         Teeth of the tool: the tooth passes' sidebands of those lines are not chatter either.
+    transient_decay : float
+        A candidate whose comb RMS has fallen below this share of its peak over the last ``settle_revs`` is a
+        transient, not chatter (0: no such check) [-].
     """
 
     name = "chatter"
@@ -374,7 +296,7 @@ class ChatterDetector(Detector):
                  min_rpm: float = 500.0, settle_revs: float = 10.0, prominence: float = 8.0,
                  exclude_hz=(), highest_hz: float | None = None, recheck_s: float = 0.02,
                  recheck_revs: float = 1.0, pitches_m=(),
-                 teeth: int | None = None) -> None:
+                 teeth: int | None = None, transient_decay: float = 0.5) -> None:
         self._axis = str(axis)
         self.spindle_rpm = None if spindle_rpm is None else check_number(spindle_rpm, "spindle_rpm", positive=True)
         self.threshold = check_number(threshold, "threshold", positive=True)
@@ -393,6 +315,9 @@ class ChatterDetector(Detector):
         self.highest_hz = None if highest_hz is None else check_number(highest_hz, "highest_hz", positive=True)
         self.pitches_m = tuple(check_number(p, "pitches_m", positive=True) for p in pitches_m)
         self.teeth = None if teeth is None else check_int(teeth, "teeth")
+        self.transient_decay = check_number(transient_decay, "transient_decay", nonneg=True)
+        if self.transient_decay >= 1.0:
+            raise ConfigError(f"'transient_decay' must be within 0-1 (0: off), got {transient_decay!r}")
 
     def recheck(self, omega: float) -> float:
         """How much later the spectral line must be found again [s]: ``recheck_s`` or ``recheck_revs`` spindle
@@ -487,7 +412,7 @@ class ChatterDetector(Detector):
         sos = scipy.signal.butter(2, self.highpass_hz, btype="high", fs=fs, output="sos")[0]
         top = self.highest(fs)
         lp = scipy.signal.butter(2, top, btype="low", fs=fs, output="sos")[0]
-        return {"sc": np.zeros(24), "levels": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
+        return {"sc": np.zeros(25), "levels": np.zeros(64), "peaks": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
                 "sos": np.ascontiguousarray(sos, dtype=float),
                 "lp": np.ascontiguousarray(lp, dtype=float), "fs": float(fs)}
 
@@ -527,14 +452,15 @@ class ChatterDetector(Detector):
         pos = 0
         while pos < n:
             done = pos + _chatter_loop(force, omega, fs, state["sos"], state["lp"], self.gate_n, self.threshold,
-                                       self.hold_revs, self.window, self.settle_revs, feed_ok, sc, state["ring"],
-                                       state["fring"], state["levels"], stat, thr, held, pos, start, cand)
+                                       self.hold_revs, self.window, self.settle_revs, self.transient_decay, feed_ok,
+                                       sc, state["ring"], state["fring"], state["levels"], state["peaks"], stat, thr,
+                                       held, pos, start, cand)
             if done < n or cand[0] > 0.0:
                 if cand[0] > 0.0:
                     bands = self._drive_bands(state, drive, done, cand[2])
                     # the statistic without the drive's lines: what is left must still be above the threshold
                     share = drive_share(state["fring"], int(sc[_FHEAD]), fs, bands, _FREQ_RING // 2)
-                    ok, freq, prom = _spectral_check(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
+                    ok, freq, prom = spectral_line(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
                                                      self.highest(fs),
                                                      self.spectrum_samples(fs), self.prominence,
                                                      self.exclude_hz, bands)
