@@ -37,386 +37,19 @@ from collections.abc import Mapping
 
 import numpy as np
 import scipy.signal
-from numba import njit
 
 from drivesense.dsp import median_of, sosfilt_with_state
 from drivesense.errors import SignalTooShortError
 from drivesense.machine.milling import check_int, check_number
+from drivesense.events.breakage_loop import BINS_PER_TOOTH, CUTTING, N_SLOTS, breakage_loop
 from drivesense.events.detector import Detector, spindle_speed_of
 from drivesense.events.edge_loss import fit_edge_loss, pattern_bins, warm_edge_loss
+from drivesense.events.second_look import SecondLook, needs_second_look
 from drivesense.events.nc_guard import guard_source, process_steady
 
 __all__ = ["BreakageDetector"]
 
 _TWO_PI = 2.0 * math.pi
-
-
-_BINS_PER_TOOTH = 8
-# scalar state slots
-(_THETA, _NEXT_REV, _REVS, _MEAN, _M2, _NSTAT, _THR, _PERSIST, _LATCH, _CUTTING, _HEAD, _COUNT,
- _DROP, _GATEOFF, _LHEAD, _DRIFT, _DEARLY, _THOFF, _PEND, _PEND_TH, _PEND_I) = range(21)
-_N_SLOTS = 21
-
-
-@njit(cache=True, nogil=True)
-def _accumulate(harm, weight, theta):  # pragma: no cover - numba
-    """``harm[k] += weight * exp(-i (k + 1) theta)`` for every k, by powers of one phasor."""
-    z = complex(math.cos(theta), -math.sin(theta))
-    p = z
-    for k in range(harm.size):
-        harm[k] += weight * p
-        p *= z
-
-
-@njit(cache=True, nogil=True)
-def _sector(theta, nb):  # pragma: no cover - numba
-    """Bin of the spindle angle ``theta`` [rad] among ``nb`` equal sectors of a revolution."""
-    return int((theta % _TWO_PI) / _TWO_PI * nb) % nb
-
-
-@njit(cache=True, nogil=True)
-def _window_pattern(sc, ring_s, ring_t, out):  # pragma: no cover - numba
-    """Sum of the raw force and count of samples per angle bin over the window (one revolution) into ``out``."""
-    cap = ring_s.size
-    nbm = out.shape[1]
-    out[:, :] = 0.0
-    for j in range(int(sc[_COUNT])):
-        idx = int(sc[_HEAD] - sc[_COUNT] + j) % cap
-        b = _sector(ring_t[idx] + sc[_THOFF], nbm)
-        out[0, b] += ring_s[idx]
-        out[1, b] += 1.0
-
-
-@njit(cache=True, nogil=True)
-def _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data, ev_pat, named, i):  # pragma: no cover
-    """The pending event out, with the baseline's pattern and (``named``) the revolution since the detection."""
-    if n_ev >= ev_index.size:
-        return n_ev
-    ev_index[n_ev] = int(sc[_PEND_I] - start)
-    for q in range(5):
-        ev_data[n_ev, q] = pend_data[q]
-    ev_data[n_ev, 5] = 1.0 if named else 0.0
-    ev_data[n_ev, 6] = i - (sc[_PEND_I] - start)
-    ev_pat[n_ev, 0:2, :] = pend_base
-    if named:
-        _window_pattern(sc, ring_s, ring_t, ev_pat[n_ev, 2:4, :])
-    sc[_PEND] = 0.0
-    return n_ev + 1
-
-
-@njit(cache=True, nogil=True)
-def _rebase(sc, ring_v, ring_r, ring_t, harm, bins):  # pragma: no cover - numba
-    """A cut begins: count the angle from here (the window's angles moved with it, its sums taken afresh).
-
-    Everything the cut learns then depends on the signal since about a revolution before the cut, not on
-    how long the stream has run: a monitor that takes the machine over and replays the signal from
-    before the cut reaches the same state, and the same events (the running sums' rounding and the
-    revolution boundaries no longer carry the stream's whole history).  ``_THOFF`` keeps the angle at
-    which the count restarted, so the per-tooth sectors stay on the spindle's own angle.
-    """
-    cap = ring_v.size
-    theta0 = sc[_THETA]
-    sc[_THOFF] += theta0
-    sc[_THETA] = 0.0
-    harm[:] = 0.0
-    bins[:] = 0.0
-    nb = bins.size
-    for j in range(int(sc[_COUNT])):
-        idx = int(sc[_HEAD] - sc[_COUNT] + j) % cap
-        ring_t[idx] -= theta0
-        _accumulate(harm, ring_v[idx] / math.pi, ring_t[idx])
-        bins[_sector(ring_t[idx] + sc[_THOFF], nb)] += ring_r[idx]
-
-
-@njit(cache=True, nogil=True)
-def _breakage_loop(force, raw, omega, feed_ok, moving, fs, teeth, nk, gate, w_min, baseline_revs, d_floor, sigmas,
-                   persist_n, level_drop, alpha, step_ratio, min_shift, sc, levels, ring_v, ring_r, ring_t, harm,
-                   heff, bins, ema_h, ema_b, snap_h, snap_b, stat, thr_out, ev_index, ev_data, ring_s, pat, pat_ema,
-                   pat_snap, pend_data, pend_base, ev_pat, start):  # pragma: no cover - numba
-    n = force.size
-    cap = ring_v.size
-    nb = bins.size
-    n_ev = 0
-    for i in range(n):
-        w = omega[i]
-        dth = w / fs
-        th = sc[_THETA] + dth
-        sc[_THETA] = th
-        v = force[i] * dth
-        # add the sample to the window (harmonics of the high-passed force; bins of the force itself, for
-        # the per-tooth shares)
-        if sc[_COUNT] >= cap:          # slower than min_rpm: drop the oldest sample
-            tail = int(sc[_HEAD] - sc[_COUNT]) % cap
-            tv = ring_v[tail]
-            tt = ring_t[tail]
-            _accumulate(harm, -tv / math.pi, tt)
-            bins[_sector(tt + sc[_THOFF], nb)] -= ring_r[tail]
-            sc[_COUNT] -= 1
-        head = int(sc[_HEAD]) % cap
-        ring_v[head] = v
-        ring_r[head] = abs(raw[i]) * dth
-        ring_t[head] = th
-        ring_s[head] = raw[i]
-        sc[_HEAD] = (sc[_HEAD] + 1) % cap
-        sc[_COUNT] += 1
-        _accumulate(harm, v / math.pi, th)
-        bins[_sector(th + sc[_THOFF], nb)] += abs(raw[i]) * dth
-        # drop what is older than one revolution
-        while sc[_COUNT] > 0:
-            tail = int(sc[_HEAD] - sc[_COUNT]) % cap
-            tt = ring_t[tail]
-            if th - tt < _TWO_PI:
-                break
-            _accumulate(harm, -ring_v[tail] / math.pi, tt)
-            bins[_sector(tt + sc[_THOFF], nb)] -= ring_r[tail]
-            sc[_COUNT] -= 1
-        if sc[_PEND] != 0.0 and th - sc[_PEND_TH] >= _TWO_PI:
-            # a whole revolution since the detection: the event is named from it (edge_loss.py)
-            n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data, ev_pat,
-                                 True, i)
-        # the window covers exactly one revolution: the oldest sample counts for the part of its angle
-        # step inside it (else the window's edge leaks the pattern into every harmonic)
-        for k in range(nk):
-            heff[k] = harm[k]
-        if sc[_COUNT] > 0:
-            tail = int(sc[_HEAD] - sc[_COUNT]) % cap
-            tt = ring_t[tail]
-            tv = ring_v[tail]
-            step = dth if dth > 0.0 else 1.0
-            outside = 1.0 - (tt - (th - _TWO_PI)) / step
-            if outside > 0.0:
-                _accumulate(heff, -outside * tv / math.pi, tt)
-        ht = 0.0
-        for k in range(nk):
-            if (k + 1) % teeth == 0:
-                ht += heff[k].real ** 2 + heff[k].imag ** 2
-        ht = math.sqrt(ht)
-        stat[i] = np.nan
-        thr_out[i] = np.nan
-        armed = sc[_REVS] >= baseline_revs
-        # a sudden loss of (nearly) all cutting while the feed goes on: a broken tool (one flute) --
-        # checked before the cutting gate, which that loss closes
-        if armed and sc[_LATCH] == 0.0 and moving[i] > 0.5 and sc[_DRIFT] <= 0.1:
-            bt = 0.0
-            for k in range(nk):
-                if (k + 1) % teeth == 0:
-                    bt += snap_h[2, k].real ** 2 + snap_h[2, k].imag ** 2
-            bt = math.sqrt(bt)
-            if bt > 0.0 and ht < level_drop * bt:
-                sc[_DROP] += 1.0
-                if sc[_DROP] >= persist_n and n_ev < ev_index.size:
-                    ev_index[n_ev] = i
-                    ev_data[n_ev, 0] = 1.0 - ht / bt
-                    ev_data[n_ev, 1] = ht / bt
-                    ev_data[n_ev, 2] = level_drop
-                    ev_data[n_ev, 3] = -1.0
-                    ev_data[n_ev, 4] = 1.0
-                    n_ev += 1
-                    sc[_LATCH] = 1.0
-            else:
-                sc[_DROP] = 0.0
-        cutting = ht > gate and w > w_min
-        if cutting:
-            sc[_GATEOFF] = 0.0
-        elif sc[_CUTTING] != 0.0 and sc[_GATEOFF] * dth < _TWO_PI:
-            # the force has just fallen: keep the cut's state one revolution (a broken tool, not yet air)
-            sc[_GATEOFF] += 1.0
-            continue
-        if feed_ok[i] < 0.5 and sc[_CUTTING] != 0.0 and sc[_REVS] >= 0.0 and cutting:
-            # the feed changes: the pattern changes with it (a feed override); learn it afresh
-            if sc[_PEND] != 0.0:
-                n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data,
-                                     ev_pat, False, i)
-            sc[_REVS] = -1.0
-            sc[_NSTAT] = 0.0
-            sc[_PERSIST] = 0.0
-            sc[_DROP] = 0.0
-        if not cutting:
-            if sc[_PEND] != 0.0:
-                n_ev = _emit_pending(sc, start, n_ev, pend_data, pend_base, ring_s, ring_t, ev_index, ev_data,
-                                     ev_pat, False, i)
-            if sc[_CUTTING] != 0.0:
-                sc[_CUTTING] = 0.0
-                sc[_REVS] = 0.0
-                sc[_NSTAT] = 0.0
-                sc[_LATCH] = 0.0
-                sc[_PERSIST] = 0.0
-                sc[_DROP] = 0.0
-            sc[_NEXT_REV] = th + _TWO_PI
-            continue
-        if sc[_CUTTING] == 0.0:
-            sc[_CUTTING] = 1.0
-            _rebase(sc, ring_v, ring_r, ring_t, harm, bins)
-            sc[_NEXT_REV] = _TWO_PI
-            sc[_REVS] = -1.0                     # the window still holds air: learn from the next revolution
-            continue
-        if th >= sc[_NEXT_REV]:
-            sc[_NEXT_REV] += _TWO_PI
-            sc[_REVS] += 1.0
-            # the tooth-pass level once per revolution: a level that drifted by > 10 % between 8 and 3
-            # revolutions back is an entry or an exit, where the pattern changes without an event
-            lk = int(sc[_LHEAD]) % levels.size
-            levels[lk] = ht
-            sc[_LHEAD] = lk + 1
-            if sc[_REVS] >= 8.0:
-                recent = levels[(lk - 3) % levels.size]
-                old = levels[(lk - 8) % levels.size]
-                sc[_DRIFT] = abs(recent / old - 1.0) if old > 0.0 else 1.0
-            else:
-                sc[_DRIFT] = 0.0
-            if sc[_REVS] == baseline_revs and sc[_LATCH] == 0.0:
-                # armed: the statistic's mean and spread over the last baseline revolution (the most settled
-                # one; the first revolutions of a cut still change), then followed as the cut goes on
-                sc[_M2] = sc[_M2] / max(sc[_NSTAT] - 1.0, 1.0)      # from here on: the variance itself
-                sc[_THR] = max(d_floor, sc[_MEAN] + sigmas * math.sqrt(sc[_M2]))
-            elif sc[_REVS] < baseline_revs:
-                sc[_NSTAT] = 0.0
-            _window_pattern(sc, ring_s, ring_t, pat)
-            if sc[_REVS] <= 0.0:
-                for k in range(nk):
-                    ema_h[k] = heff[k]
-                for b in range(nb):
-                    ema_b[b] = bins[b]
-                pat_ema[:, :] = pat
-            elif sc[_LATCH] == 0.0:
-                for k in range(nk):
-                    ema_h[k] += alpha * (heff[k] - ema_h[k])
-                for b in range(nb):
-                    ema_b[b] += alpha * (bins[b] - ema_b[b])
-                pat_ema[:, :] += alpha * (pat - pat_ema)
-            for q in range(pat_snap.shape[0] - 1, 0, -1):
-                pat_snap[q] = pat_ema if sc[_REVS] <= 0.0 else pat_snap[q - 1]
-            pat_snap[0] = pat_ema
-            depth = snap_h.shape[0]
-            for k in range(nk):
-                for q in range(depth - 1, 0, -1):
-                    snap_h[q, k] = ema_h[k] if sc[_REVS] <= 0.0 else snap_h[q - 1, k]
-                snap_h[0, k] = ema_h[k]
-            for b in range(nb):
-                for q in range(depth - 1, 0, -1):
-                    snap_b[q, b] = ema_b[b] if sc[_REVS] <= 0.0 else snap_b[q - 1, b]
-                snap_b[0, b] = ema_b[b]
-            # how much the pattern changed between 5 and 2 revolutions back: a breakage is a step (nothing
-            # before it), an entry or an exit a drift (as much before as now)
-            et = 0.0
-            lt = 0.0
-            for k in range(nk):
-                if (k + 1) % teeth == 0:
-                    et += snap_h[2, k].real ** 2 + snap_h[2, k].imag ** 2
-                    lt += snap_h[5, k].real ** 2 + snap_h[5, k].imag ** 2
-            sc[_DEARLY] = 0.0
-            if et > 0.0 and lt > 0.0:
-                sc5 = math.sqrt(et / lt)
-                ch = 0.0
-                for k in range(nk):
-                    if (k + 1) % teeth != 0:
-                        ch += (snap_h[2, k].real - sc5 * snap_h[5, k].real) ** 2 \
-                            + (snap_h[2, k].imag - sc5 * snap_h[5, k].imag) ** 2
-                sc[_DEARLY] = math.sqrt(ch / et)
-            if sc[_LATCH] != 0.0 and sc[_REVS] > baseline_revs + 2:
-                # after an alarm: the new pattern is learnt afresh
-                sc[_REVS] = 0.0
-                sc[_NSTAT] = 0.0
-                sc[_LATCH] = 0.0
-        if sc[_REVS] < 1.0 or teeth < 2:
-            continue
-        bt = 0.0
-        for k in range(nk):
-            if (k + 1) % teeth == 0:
-                bt += snap_h[2, k].real ** 2 + snap_h[2, k].imag ** 2
-        bt = math.sqrt(bt)
-        s_scale = ht / bt if bt > 0.0 else 1.0
-        diff = 0.0
-        for k in range(nk):
-            if (k + 1) % teeth != 0:
-                dr = heff[k].real - s_scale * snap_h[2, k].real
-                di = heff[k].imag - s_scale * snap_h[2, k].imag
-                diff += dr * dr + di * di
-        d = math.sqrt(diff) / ht
-        stat[i] = d
-        if not armed:
-            if sc[_REVS] >= 1.0:                 # the statistic's spread in this baseline revolution
-                sc[_NSTAT] += 1.0
-                delta = d - sc[_MEAN] if sc[_NSTAT] > 1.0 else 0.0
-                if sc[_NSTAT] == 1.0:
-                    sc[_MEAN] = d
-                    sc[_M2] = 0.0
-                else:
-                    sc[_MEAN] += delta / sc[_NSTAT]
-                    sc[_M2] += delta * (d - sc[_MEAN])
-            continue
-        thr_out[i] = sc[_THR]
-        if sc[_LATCH] != 0.0:
-            continue
-        if d > sc[_THR] and sc[_DRIFT] <= 0.1 and d > step_ratio * sc[_DEARLY]:
-            sc[_PERSIST] += 1.0
-        else:
-            sc[_PERSIST] = 0.0
-        if d <= sc[_THR]:
-            # the statistic's level follows slow changes of the cut (entry, exit, wear): a running mean and
-            # variance over about 10 revolutions, from samples below the threshold only
-            a_s = dth / (10.0 * _TWO_PI)
-            delta = d - sc[_MEAN]
-            sc[_MEAN] += a_s * delta
-            sc[_M2] = (1.0 - a_s) * (sc[_M2] + a_s * delta * delta)
-            sc[_THR] = max(d_floor, sc[_MEAN] + sigmas * math.sqrt(sc[_M2]))
-        if sc[_PERSIST] >= persist_n and n_ev < ev_index.size:
-            # which tooth lost how much: the revolution cut into one sector per tooth, at every rotation of
-            # the partition; a damaged tooth moves work from its sector to the next one at some rotation,
-            # a change every tooth shares (the part's edge notching every pulse) moves none at any
-            worst = 0.0
-            worst_j = 0
-            shift_o = 0
-            shift = 0.0
-            tot_now = 0.0
-            tot_base = 0.0
-            for b in range(nb):
-                tot_now += bins[b]
-                tot_base += snap_b[2, b]
-            per = nb // teeth
-            for o in range(per):
-                o_shift = 0.0
-                o_worst = 0.0
-                o_j = 0
-                for j in range(teeth):
-                    now = 0.0
-                    base = 0.0
-                    for q in range(per):
-                        b = (o + j * per + q) % nb
-                        now += bins[b]
-                        base += snap_b[2, b]
-                    if base > 0.0 and tot_now > 0.0 and tot_base > 0.0:
-                        moved = abs(now / tot_now - base / tot_base)
-                        loss = 1.0 - (now / tot_now) / (base / tot_base)
-                        if moved > o_shift:
-                            o_shift = moved
-                        if loss > o_worst:
-                            o_worst = loss
-                            o_j = j
-                if o_shift > shift:
-                    shift = o_shift
-                    worst = o_worst
-                    worst_j = o_j
-                    shift_o = o
-            if shift < min_shift:
-                # every tooth kept its share of the work: the pattern changed for all teeth alike (the tool
-                # leaving the part notches every pulse), which no damaged tooth does
-                sc[_PERSIST] = 0.0
-                continue
-            # named one revolution later, from the whole revolution after the detection (the sector shares
-            # above are the fallback when the cut ends before)
-            pend_data[0] = min(worst, 1.0)
-            pend_data[1] = d
-            pend_data[2] = sc[_THR]
-            pend_data[3] = ((shift_o + worst_j * per) % nb) * 360.0 / nb
-            pend_data[4] = s_scale
-            pend_base[:, :] = pat_snap[2]
-            sc[_PEND] = 1.0
-            sc[_PEND_TH] = th
-            sc[_PEND_I] = start + i
-            sc[_LATCH] = 1.0
-            sc[_REVS] = baseline_revs        # count on from here; re-learn after baseline_revs + 2 more
-    return n_ev
 
 
 class BreakageDetector(Detector):
@@ -472,8 +105,9 @@ class BreakageDetector(Detector):
         return (f"force_{self._axis}",)
 
     def latency_s(self, fs: float) -> float:
-        """Three revolutions at the slowest expected spindle speed [s]: up to two to detect (typically one)
-        and the whole revolution after the detection that names the event.
+        """Four revolutions at the slowest expected spindle speed [s]: up to two to detect (typically one),
+        the whole revolution after the detection that names the event, and one more where the name's fit
+        explained little (:mod:`~drivesense.events.second_look`).
 
         Parameters
         ----------
@@ -481,7 +115,7 @@ class BreakageDetector(Detector):
             Sample rate [Hz].
         """
         rpm = self.spindle_rpm or self.min_rpm
-        return 3 * 60.0 / rpm
+        return 4 * 60.0 / rpm
 
     def new_state(self, fs: float) -> dict:
         """Ring of one revolution at ``min_rpm``, harmonics, bins, baselines (constant size).
@@ -493,17 +127,18 @@ class BreakageDetector(Detector):
         """
         cap = int(math.ceil(fs * 60.0 / self.min_rpm)) + 2
         nk = 2 * self.teeth if self.teeth > 1 else 2
-        nb = _BINS_PER_TOOTH * self.teeth
+        nb = BINS_PER_TOOTH * self.teeth
         nbm = pattern_bins(self.teeth)
         if self.teeth > 1:
             warm_edge_loss(nbm, self.teeth)      # the naming's grid, built now rather than at the first alarm
-        return {"sc": np.zeros(_N_SLOTS), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
+        return {"sc": np.zeros(N_SLOTS), "levels": np.zeros(16), "ring_v": np.zeros(cap), "ring_r": np.zeros(cap),
                 "ring_t": np.zeros(cap), "harm": np.zeros(nk, dtype=complex), "heff": np.zeros(nk, dtype=complex),
                 "bins": np.zeros(nb), "ema_h": np.zeros(nk, dtype=complex), "ema_b": np.zeros(nb),
                 "snap_h": np.zeros((6, nk), dtype=complex), "snap_b": np.zeros((6, nb)),
                 "ring_s": np.zeros(cap), "pat": np.zeros((2, nbm)), "pat_ema": np.zeros((2, nbm)),
                 "pat_snap": np.zeros((6, 2, nbm)), "pend_data": np.zeros(5), "pend_base": np.zeros((2, nbm)),
-                "fs": float(fs), "armed_ever": False, "cut_seen": False}
+                "fs": float(fs), "armed_ever": False, "cut_seen": False, "second_look": SecondLook(nbm),
+                "theta": 0.0}
 
     def process(self, state: dict, arrays: Mapping[str, np.ndarray], start: int):
         """Events, statistic d and threshold for the next samples (see the module docstring).
@@ -536,7 +171,11 @@ class BreakageDetector(Detector):
         fs = state["fs"]
         persist = max(1, int(round(0.5 * 60.0 / max(w_median * 60 / _TWO_PI, 1.0) / self.teeth * fs))) \
             if n else 1
-        n_ev = _breakage_loop(force, raw, omega, feed_ok, moving, fs, self.teeth, state["harm"].size, self.gate_n,
+        # the spindle's own angle at each sample, summed sample by sample as the loop does (the same in any
+        # chunks); the loop's pattern bins are by this angle (its count from each cut's start plus its offset)
+        theta = np.cumsum(np.concatenate([[state["theta"]], omega / fs]))[1:]
+        state["theta"] = float(theta[-1]) if n else state["theta"]
+        n_ev = breakage_loop(force, raw, omega, feed_ok, moving, fs, self.teeth, state["harm"].size, self.gate_n,
                               self.min_rpm * _TWO_PI / 60.0, float(self.baseline_revs), self.threshold, self.sigmas,
                               persist, self.level_drop, self.alpha, self.step_ratio, self.min_shift, state["sc"],
                               state["levels"], state["ring_v"], state["ring_r"], state["ring_t"], state["harm"],
@@ -545,8 +184,8 @@ class BreakageDetector(Detector):
                               state["pat_ema"], state["pat_snap"], state["pend_data"], state["pend_base"], ev_pat,
                               float(start))
         state["armed_ever"] = state["armed_ever"] or bool(np.any(np.isfinite(thr)))
-        state["cut_seen"] = state["cut_seen"] or bool(np.any(np.isfinite(stat))) or state["sc"][_CUTTING] > 0
-        if state["sc"][_CUTTING] == 0.0:
+        state["cut_seen"] = state["cut_seen"] or bool(np.any(np.isfinite(stat))) or state["sc"][CUTTING] > 0
+        if state["sc"][CUTTING] == 0.0:
             state["rest_end"] = start + n          # out of a cut here: the state holds one revolution and filters
         events = []
         for e in range(n_ev):
@@ -571,7 +210,15 @@ class BreakageDetector(Detector):
                 evidence["tooth_angle_deg"] = float(round(tooth, 1))   # where the damaged tooth's sector starts
             else:
                 evidence["rule"] = "force fell below level_drop of the baseline"
-            events.append((start + int(ev_index[e]), kind, confidence, evidence))
+            event = (start + int(ev_index[e]), kind, confidence, evidence)
+            if fit is not None and needs_second_look(fit.edge_loss, fit.residual):
+                # one tooth's loss explains little of the change: a step or a drift?  (second_look.py)
+                at = int(ev_index[e] + delay)
+                if state["second_look"].hold(event, ev_pat[e, 2], ev_pat[e, 3], float(theta[min(at, n - 1)])):
+                    continue
+            events.append(event)
+        events += state["second_look"].push(raw, theta, fs)
+        events.sort(key=lambda ev: ev[0])
         return events, stat, thr
 
     def unusable(self, fs: float, spindle_rpm: float | None = None) -> str | None:
@@ -619,7 +266,7 @@ class BreakageDetector(Detector):
         state : dict
             The stream's state.
         """
-        if state["sc"][_CUTTING] == 0.0:
+        if state["sc"][CUTTING] == 0.0:
             return None
         return max(0, state.get("rest_end", 0) - state["ring_v"].size - int(state["fs"]))
 

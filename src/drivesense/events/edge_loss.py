@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["EdgeLossFit", "fit_edge_loss", "pattern_bins", "warm_edge_loss"]
+__all__ = ["EdgeLossFit", "fit_edge_loss", "pattern_bins", "pattern_means", "warm_edge_loss"]
 
 _TWO_PI = 2.0 * math.pi
 #: The grids searched: engagement limits [deg] (every pair), helix lags [deg], losses [-].
@@ -106,8 +106,18 @@ def warm_edge_loss(bins: int, teeth: int) -> None:
     _grid_tables(int(bins), int(teeth))
 
 
-def _fill(sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Mean per bin, empty bins interpolated (circularly) from their neighbours."""
+def pattern_means(sums, counts) -> np.ndarray:
+    """Mean per angle bin of a revolution, empty bins interpolated (circularly) from their neighbours.
+
+    Parameters
+    ----------
+    sums : array_like
+        Per bin, the sum of the force [N].
+    counts : array_like
+        Per bin, the number (or weight) of the samples [-].
+    """
+    sums = np.asarray(sums, dtype=float)
+    counts = np.asarray(counts, dtype=float)
     ok = counts > 0
     out = np.zeros(sums.size)
     out[ok] = sums[ok] / counts[ok]
@@ -188,8 +198,8 @@ def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) 
     EdgeLossFit or None
         None when a pattern is empty or flat (nothing to fit).
     """
-    base = _fill(np.asarray(base_sums, dtype=float), np.asarray(base_counts, dtype=float))
-    after = _fill(np.asarray(after_sums, dtype=float), np.asarray(after_counts, dtype=float))
+    base = pattern_means(base_sums, base_counts)
+    after = pattern_means(after_sums, after_counts)
     nb = base.size
     if teeth < 2 or nb % teeth or not np.any(np.asarray(after_counts) > 0) or not np.any(np.asarray(base_counts) > 0):
         return None
