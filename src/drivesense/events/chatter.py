@@ -25,7 +25,7 @@ frequency is the chatter frequency reported.  A transient -- the tool leaving
 the part, a step of the pattern -- makes the comb's output jump within a
 revolution and then die away, where chatter grows from the noise and holds: a
 candidate whose comb RMS has fallen below ``transient_decay`` of its peak over
-the last ``settle_revs`` is no chatter.
+the last ten revolutions is no chatter.
 
 The drive's own lines are no chatter: a measuring error that repeats every
 ``p`` of the axis's travel (the motor encoder's signal period, ``pitches_m``)
@@ -54,23 +54,32 @@ __all__ = ["ChatterDetector", "drive_lines", "drive_share"]
 
 _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
+#: Revolutions back over which a transient's peak counts (an exit's comb dies away over about ten).
+_PEAK_REVS = 10
+#: A comb RMS this many times what it was two revolutions before (at least a fifth of the threshold's) jumped
+#: (a step, an exit), not grew: chatter grows by 3x per revolution at most on the bench's cuts [-].
+_JUMP = 10.0
+#: After a jump, chatter is confirmed no sooner than this many revolutions (and the RMS window) into the run
+#: above the threshold: a step has passed the double comb (2) and a transient's comb has died away [rev].
+_AFTER_JUMP_REVS = 3.0
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
- _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT, _PEAK) = range(25)
+ _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT, _PEAK, _INRUN) = range(26)
 #: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
 GUARDS = {1: "settling (a cut's start, a feed or spindle-speed change)",
           2: "forced level changing (an exit, an abrupt engagement change)",
           3: "above the threshold for less than hold_revs, or no spectral line of its own",
-          4: "a transient: the comb's output has fallen from a peak in the last settle_revs (an exit, a step)"}
+          4: "a transient: the comb's output has fallen from a peak in the last 10 revolutions (an exit, a step)"}
 
 
 @njit(cache=True, nogil=True)
 def _unconfirmed(sc, held, start, upto):  # pragma: no cover - numba
     """The run above the threshold that ends here without an event: code 3 over its samples in this chunk
     (``start``: the chunk's first sample since the stream began; ``upto``: the chunk index it ends at)."""
-    if sc[_HOLD] > 0.0 and sc[_LATCH] == 0.0:
+    if sc[_INRUN] != 0.0 and sc[_LATCH] == 0.0:
         for j in range(max(int(sc[_RUNAT]) - start, 0), upto):
             if held[j] == 0.0:
                 held[j] = 3.0
+    sc[_INRUN] = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -92,8 +101,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, decay, feed_ok,
-                  sc, ring, fring, levels, peaks, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, decay, level_max,
+                  feed_ok, sc, ring, fring, levels, peaks, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
     """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
     chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
     n = force.size - off
@@ -197,7 +206,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
                 # (an entry fills in steadily, and chatter often starts on the way in)
                 ratio = rf / levels[old_k]
                 sc[_LEVEL] = 1.0 - ratio if ratio < 1.0 else (ratio - 1.0) / 4.0
-        if sc[_LEVEL] > 0.15:
+        if sc[_LEVEL] > level_max:
             _unconfirmed(sc, held, start, i)
             sc[_HOLD] = 0.0
             held[i] = 2.0
@@ -207,8 +216,9 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             held[i] = 1.0
             continue
         if r > threshold:
-            if sc[_HOLD] == 0.0:
+            if sc[_INRUN] == 0.0:                   # a run above the threshold begins
                 sc[_RUNAT] = start + i
+                sc[_INRUN] = 1.0
             sc[_HOLD] += 1.0
             sc[_QUIET] = 0.0
         else:
@@ -220,9 +230,9 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
         if sc[_HOLD] >= hold_revs * delay and sc[_LATCH] == 0.0 and decay > 0.0:
             # a transient (a part's exit, a step of the pattern) jumps within a revolution and then dies
             # away; chatter grows from the noise and holds: a comb below decay^2 of its power's peak over
-            # the last settle_revs is no chatter
+            # the last _PEAK_REVS revolutions is no chatter
             top = sc[_PEAK]
-            for q in range(1, min(int(settle_revs), int(sc[_LHEAD])) + 1):
+            for q in range(1, min(_PEAK_REVS, int(sc[_LHEAD])) + 1):
                 top = max(top, peaks[(int(sc[_LHEAD]) - q) % peaks.size])
             if comb < decay * decay * top:
                 _unconfirmed(sc, held, start, i)
@@ -236,6 +246,14 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             cand[2] = w
             return m + 1
     return n
+
+
+def _jumped(sc: np.ndarray, peaks: np.ndarray, forced_rms: float, threshold: float) -> bool:
+    """Whether the comb's power now stands more than ``_JUMP``^2 above the largest of the revolution two back
+    (or of the noise: a fifth of the threshold at the present forced RMS)."""
+    floor = 6.0 * (0.2 * threshold * forced_rms) ** 2
+    before = peaks[(int(sc[_LHEAD]) - 2) % peaks.size] if sc[_LHEAD] >= 2 else 0.0
+    return max(sc[_EE] - sc[_EN], 0.0) > _JUMP ** 2 * max(before, floor)
 
 
 class ChatterDetector(Detector):
@@ -283,8 +301,11 @@ class ChatterDetector(Detector):
     teeth : int, optional
         Teeth of the tool: the tooth passes' sidebands of those lines are not chatter either.
     transient_decay : float
-        A candidate whose comb RMS has fallen below this share of its peak over the last ``settle_revs`` is a
+        A candidate whose comb RMS has fallen below this share of its peak over the last 10 revolutions is a
         transient, not chatter (0: no such check) [-].
+    level_change : float
+        The forced level's fall over ``settle_revs`` (a rise counts a quarter) above which the detector holds
+        (an exit, an abrupt change of engagement) [-].
     """
 
     name = "chatter"
@@ -292,11 +313,11 @@ class ChatterDetector(Detector):
     GUARDS = GUARDS
 
     def __init__(self, axis: str = "x", *, spindle_rpm: float | None = None, threshold: float = 0.05,
-                 hold_revs: float = 2.6, window_revs: float = 0.5, highpass_hz: float = 150.0, gate_n: float = 2.0,
+                 hold_revs: float = 1.0, window_revs: float = 0.5, highpass_hz: float = 150.0, gate_n: float = 2.0,
                  min_rpm: float = 500.0, settle_revs: float = 10.0, prominence: float = 8.0,
                  exclude_hz=(), highest_hz: float | None = None, recheck_s: float = 0.02,
                  recheck_revs: float = 1.0, pitches_m=(),
-                 teeth: int | None = None, transient_decay: float = 0.5) -> None:
+                 teeth: int | None = None, transient_decay: float = 0.5, level_change: float = 0.15) -> None:
         self._axis = str(axis)
         self.spindle_rpm = None if spindle_rpm is None else check_number(spindle_rpm, "spindle_rpm", positive=True)
         self.threshold = check_number(threshold, "threshold", positive=True)
@@ -316,6 +337,7 @@ class ChatterDetector(Detector):
         self.pitches_m = tuple(check_number(p, "pitches_m", positive=True) for p in pitches_m)
         self.teeth = None if teeth is None else check_int(teeth, "teeth")
         self.transient_decay = check_number(transient_decay, "transient_decay", nonneg=True)
+        self.level_change = check_number(level_change, "level_change", positive=True)
         if self.transient_decay >= 1.0:
             raise ConfigError(f"'transient_decay' must be within 0-1 (0: off), got {transient_decay!r}")
 
@@ -412,7 +434,8 @@ class ChatterDetector(Detector):
         sos = scipy.signal.butter(2, self.highpass_hz, btype="high", fs=fs, output="sos")[0]
         top = self.highest(fs)
         lp = scipy.signal.butter(2, top, btype="low", fs=fs, output="sos")[0]
-        return {"sc": np.zeros(25), "levels": np.zeros(64), "peaks": np.zeros(64), "ring": np.zeros(cap), "fring": np.zeros(_FREQ_RING),
+        return {"sc": np.zeros(26), "levels": np.zeros(64), "peaks": np.zeros(64), "ring": np.zeros(cap),
+                "fring": np.zeros(_FREQ_RING),
                 "sos": np.ascontiguousarray(sos, dtype=float),
                 "lp": np.ascontiguousarray(lp, dtype=float), "fs": float(fs)}
 
@@ -434,7 +457,10 @@ class ChatterDetector(Detector):
         force = np.ascontiguousarray(arrays[self.channel_names[0]], dtype=float)
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
-        feed_ok = process_steady(arrays, state)
+        # with the NC's context its word replaces the slow guards read from the drive signals: the measured
+        # feed (which chatter itself shakes) and the forced level's change (exits: the transient check)
+        feed_ok = process_steady(arrays, state, measured_feed=False)
+        level_max = self.level_change if guard_source(state) != "nc_context" else math.inf
         hold = state.get("nc_hold")              # the hold after the NC's commanded changes (None: no context)
         unsteady = np.flatnonzero(hold < 0.5) if hold is not None else ()
         if len(unsteady):                        # the last sample of a commanded change's hold
@@ -452,7 +478,8 @@ class ChatterDetector(Detector):
         pos = 0
         while pos < n:
             done = pos + _chatter_loop(force, omega, fs, state["sos"], state["lp"], self.gate_n, self.threshold,
-                                       self.hold_revs, self.window, self.settle_revs, self.transient_decay, feed_ok,
+                                       self.hold_revs, self.window, self.settle_revs, self.transient_decay,
+                                       level_max, feed_ok,
                                        sc, state["ring"], state["fring"], state["levels"], state["peaks"], stat, thr,
                                        held, pos, start, cand)
             if done < n or cand[0] > 0.0:
@@ -460,31 +487,46 @@ class ChatterDetector(Detector):
                     bands = self._drive_bands(state, drive, done, cand[2])
                     # the statistic without the drive's lines: what is left must still be above the threshold
                     share = drive_share(state["fring"], int(sc[_FHEAD]), fs, bands, _FREQ_RING // 2)
-                    ok, freq, prom = spectral_line(state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz,
-                                                     self.highest(fs),
-                                                     self.spectrum_samples(fs), self.prominence,
-                                                     self.exclude_hz, bands)
-                    ok = ok and cand[0] * math.sqrt(max(1.0 - share, 0.0)) > self.threshold
                     here = start + done - 1
-                    # a spectrum over a feed change (an override's ramp) holds its sidebands: no confirmation
-                    # until the window has left the change
-                    ok = ok and here - self.spectrum_samples(fs) >= state.get("last_unsteady", -1)
                     pending = state.get("pending")
                     df = fs / self.spectrum_samples(fs)
                     recheck = self.recheck(cand[2]) * fs
-                    if ok and pending is not None and here - pending[1] <= 4 * recheck \
-                            and abs(freq - pending[0]) <= 3 * df:
-                        # the same line a moment later: chatter (a transient's line moves or goes)
+                    if pending is not None and here - pending[1] > 4 * recheck:
+                        pending = None
+                    line = (state["ring"], int(sc[_HEAD]), fs, cand[2], self.highpass_hz, self.highest(fs),
+                            self.spectrum_samples(fs), self.prominence, self.exclude_hz, bands)
+                    # the line found before, looked for again (it need not be the largest now: a second one
+                    # may grow beside it); else the largest line
+                    ok, freq, prom = spectral_line(*line, near_hz=pending[0], tol_hz=3 * df) if pending \
+                        else (False, 0.0, 0.0)
+                    again = ok
+                    if not ok:
+                        ok, freq, prom = spectral_line(*line)
+                    ok = ok and cand[0] * math.sqrt(max(1.0 - share, 0.0)) > self.threshold
+                    # a spectrum over a feed change (an override's ramp) holds its sidebands: no confirmation
+                    # until the window has left the change
+                    ok = ok and here - self.spectrum_samples(fs) >= state.get("last_unsteady", -1)
+                    delay = _TWO_PI / cand[2] * fs
+                    # a step of the force (a breakage) or a transient (an exit) makes the comb jump from the
+                    # noise within a revolution; a step passes the double comb for two revolutions and the RMS
+                    # window, a transient's comb dies away over a few (the decay check); chatter grows from the
+                    # noise over revolutions and is confirmed at the recheck
+                    step = (_AFTER_JUMP_REVS + self.window - self.hold_revs) * delay
+                    if ok and again and (not pending[2] or here - pending[1] >= step - 1):
+                        # the same line a moment later (past a step's passage if the comb jumped): chatter (a
+                        # transient's line moves or goes)
                         sc[_LATCH] = 1.0
                         state["pending"] = None
                         events.append((here, "chatter", min(1.0, 0.5 * cand[0] / self.threshold),
                                        {"statistic": float(cand[0]), "threshold": self.threshold,
                                         "chatter_frequency_hz": freq, "prominence": prom,
                                         "forced_rms_n": float(cand[1]), "guards": guard_source(state)}))
+                    elif ok and again:
+                        # the same line after a jump: looked for again once a step would have passed
+                        sc[_HOLD] = self.hold_revs * delay - (step - (here - pending[1]))
                     elif ok:
-                        state["pending"] = (freq, here)
-                        delay = _TWO_PI / cand[2] * fs
-                        sc[_HOLD] = max(self.hold_revs * delay - recheck, 0.0)
+                        state["pending"] = (freq, here, _jumped(sc, state["peaks"], cand[1], self.threshold))
+                        sc[_HOLD] = self.hold_revs * delay - recheck      # (below zero: counts up to it)
                     else:
                         state["pending"] = None
                         _unconfirmed(sc, held, start, done)

@@ -88,7 +88,8 @@ def drive_share(fring: np.ndarray, head: int, fs: float, bands, length: int) -> 
 
 
 def spectral_line(ring: np.ndarray, head: int, fs: float, omega: float, lowest_hz: float, highest_hz: float,
-                    length: int, prominence: float, exclude=(), bands=()) -> tuple[bool, float, float]:
+                    length: int, prominence: float, exclude=(), bands=(), near_hz: float | None = None,
+                  tol_hz: float = 0.0) -> tuple[bool, float, float]:
     """Is there a narrow peak between the spindle harmonics?  (ok, its frequency [Hz], its prominence [-]).
 
     The last ``length`` force samples, Hann-windowed: the largest spectral line
@@ -121,6 +122,11 @@ def spectral_line(ring: np.ndarray, head: int, fs: float, omega: float, lowest_h
         The feed drive's mode frequencies [Hz].
     bands : sequence of (float, float)
         Frequency bands left out [Hz].
+    near_hz : float, optional
+        Look for the line only within ``tol_hz`` of this frequency [Hz] (a line found before, looked for
+        again), against the median of all the lines.
+    tol_hz : float
+        See ``near_hz`` [Hz].
     """
     cap = ring.size
     x = ring[(head - length + np.arange(length)) % cap]
@@ -138,7 +144,10 @@ def spectral_line(ring: np.ndarray, head: int, fs: float, omega: float, lowest_h
     if np.count_nonzero(keep) < 8:
         return False, 0.0, 0.0
     lines = spec[keep]
-    k = int(np.argmax(lines))
     floor = float(np.median(lines))
+    candidates = lines if near_hz is None else np.where(np.abs(freq[keep] - near_hz) <= tol_hz, lines, -np.inf)
+    k = int(np.argmax(candidates))
+    if not np.isfinite(candidates[k]):
+        return False, 0.0, 0.0
     ratio = float(lines[k] / floor) if floor > 0 else np.inf
     return ratio >= prominence, float(freq[keep][k]), ratio

@@ -90,7 +90,7 @@ def nc_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
     return ok
 
 
-def process_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
+def process_steady(chunk: Mapping[str, np.ndarray], state: dict, *, measured_feed: bool = True) -> np.ndarray:
     """The detectors' mask: the path-speed check, and the NC's context where the chunk carries it.
 
     Parameters
@@ -99,6 +99,10 @@ def process_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
         The chunk's arrays [SI unit of each channel].
     state : dict
         The detector's state (``"fs"``; histories kept in it; ``"guards"`` set to the source used).
+    measured_feed : bool
+        With the NC's context, also hold where the measured path speed is not steady (False: the NC's word
+        alone -- for a detector whose own event, chatter, shakes the measured speed).  Without context the
+        path-speed check always applies.
 
     Returns
     -------
@@ -111,7 +115,7 @@ def process_steady(chunk: Mapping[str, np.ndarray], state: dict) -> np.ndarray:
     feed = feed_steady(chunk, state)
     if has_context(chunk):
         state["guards"] = "nc_context"
-        return feed * nc_steady(chunk, state)
+        return feed * nc_steady(chunk, state) if measured_feed else nc_steady(chunk, state)
     state["guards"] = "feed_speed" if "feed_speed" in chunk else "none"
     state.pop("nc_hold", None)
     return feed
