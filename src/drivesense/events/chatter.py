@@ -13,19 +13,25 @@ repeating part ``(F(t) + F(t - T) + F(t - 2T)) / 3`` (the forced response)::
     r = sqrt((ms(e_bp) - noise) / 6) / rms(forced)
 
 ``r`` is about zero in a stable cut and about one for chatter as strong as the
-forced force.  A step of the force (a breakage, a feed change) passes the
-double comb for two revolutions only: a candidate needs ``r`` above the
-threshold for ``hold_revs`` revolutions, after ``settle_revs`` of cutting at a
-steady feed (``feed_speed``) and a forced level that moved by < 15 % over
-them.  It becomes an event when the last ~0.4 s of force hold a spectral line
-of its own between the spindle harmonics (``prominence`` times their median),
-found again at the same frequency a revolution (``recheck_revs``, at least
-``recheck_s``) later (the line of a transient moves or goes); that line's
-frequency is the chatter frequency reported.  A transient -- the tool leaving
-the part, a step of the pattern -- makes the comb's output jump within a
-revolution and then die away, where chatter grows from the noise and holds: a
-candidate whose comb RMS has fallen below ``transient_decay`` of its peak over
-the last ten revolutions is no chatter.
+forced force.  A candidate needs ``r`` above the threshold for ``hold_revs``
+revolutions, after ``settle_revs`` of cutting at a steady feed (``feed_speed``)
+and a forced level that moved by < ``level_change`` over them.  It becomes an
+event when the last ~0.4 s of force hold a spectral line of its own between the
+spindle harmonics (``prominence`` times their median), found again at the same
+frequency a revolution (``recheck_revs``, at least ``recheck_s``) later (the
+line of a transient moves or goes); that line's frequency is the chatter
+frequency reported.
+
+Chatter grows from the noise over revolutions.  A step of the force (a
+breakage, a feed change) makes the comb jump within a revolution and passes it
+for two revolutions; a transient (the tool leaving the part) jumps too and then
+dies away.  A comb that stood ten times above what it was two revolutions
+before is confirmed no sooner than three revolutions and the RMS window into
+its run, and a candidate whose comb RMS has fallen below ``transient_decay`` of
+its peak over the last ten revolutions is no chatter.  With the NC's context
+(:mod:`~drivesense.events.nc_guard`), its word replaces the guards read from the
+drive signals: the forced level's change and the measured feed, which chatter
+itself shakes, do not hold the detector there.
 
 The drive's own lines are no chatter: a measuring error that repeats every
 ``p`` of the axis's travel (the motor encoder's signal period, ``pitches_m``)
