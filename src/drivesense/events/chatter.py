@@ -62,12 +62,19 @@ _TWO_PI = 2.0 * math.pi
 _FREQ_RING = 4096
 #: Revolutions back over which a transient's peak counts (an exit's comb dies away over about ten).
 _PEAK_REVS = 10
-#: A comb RMS this many times what it was two revolutions before (at least a fifth of the threshold's) jumped
-#: (a step, an exit), not grew: chatter grows by 3x per revolution at most on the bench's cuts [-].
-_JUMP = 10.0
+#: A comb RMS that rose this many times from one revolution to the next jumped (a step, an exit), it did not
+#: grow: chatter grows by 3x per revolution at most on the bench's cuts [-].
+_JUMP = 3.5
+#: ... or this many times over two revolutions (chatter: 7x at most) [-].
+_JUMP_2 = 9.0
 #: After a jump, chatter is confirmed no sooner than this many revolutions (and the RMS window) into the run
 #: above the threshold: a step has passed the double comb (2) and a transient's comb has died away [rev].
 _AFTER_JUMP_REVS = 3.0
+#: ... and its comb RMS must still be this share of its peak over the last _PEAK_REVS revolutions [-].
+_AFTER_JUMP_KEEP = 0.8
+#: With the NC's context, the forced level's change that still holds the detector: the last part of an exit,
+#: where the forced force fades under the noise and the drive's lines (``level_change`` without context) [-].
+_CONTEXT_LEVEL = 0.5
 (_HEAD, _COUNT, _EE, _MF, _HOLD, _LATCH, _W_REF, _Z0, _Z1, _FHEAD, _ARMED, _EP, _EN, _CUTFOR,
  _QUIET, _LEN, _SUM, _AIRFOR, _REVPH, _LHEAD, _LEVEL, _Z2, _Z3, _RUNAT, _PEAK, _INRUN) = range(26)
 #: What the guard codes :meth:`ChatterDetector.process` returns per sample mean (0: judged).
@@ -255,11 +262,24 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
 
 
 def _jumped(sc: np.ndarray, peaks: np.ndarray, forced_rms: float, threshold: float) -> bool:
-    """Whether the comb's power now stands more than ``_JUMP``^2 above the largest of the revolution two back
-    (or of the noise: a fifth of the threshold at the present forced RMS)."""
+    """Whether the comb's RMS rose more than ``_JUMP`` times from one revolution to the next (``_JUMP_2`` over
+    two) over the last
+    ``_PEAK_REVS`` (each revolution's largest, the present one's so far; below a fifth of the threshold counts
+    as that much: the noise)."""
     floor = 6.0 * (0.2 * threshold * forced_rms) ** 2
-    before = peaks[(int(sc[_LHEAD]) - 2) % peaks.size] if sc[_LHEAD] >= 2 else 0.0
-    return max(sc[_EE] - sc[_EN], 0.0) > _JUMP ** 2 * max(before, floor)
+    done = int(sc[_LHEAD])
+    seq = [max(peaks[(done - q) % peaks.size], floor) for q in range(min(done, _PEAK_REVS), 0, -1)]
+    seq.append(max(sc[_PEAK], floor))
+    # a jump that straddles two revolutions' boundary shows over two
+    return any(b > _JUMP ** 2 * a for a, b in zip(seq[:-1], seq[1:])) or \
+        any(b > _JUMP_2 ** 2 * a for a, b in zip(seq[:-2], seq[2:]))
+
+
+def _below_peak(sc: np.ndarray, peaks: np.ndarray, share: float) -> bool:
+    """Whether the comb's RMS now is below ``share`` of its largest over the last ``_PEAK_REVS`` revolutions."""
+    done = int(sc[_LHEAD])
+    top = max([sc[_PEAK]] + [peaks[(done - q) % peaks.size] for q in range(1, min(done, _PEAK_REVS) + 1)])
+    return max(sc[_EE] - sc[_EN], 0.0) < share ** 2 * top
 
 
 class ChatterDetector(Detector):
@@ -464,9 +484,10 @@ class ChatterDetector(Detector):
         n = force.size
         omega = np.ascontiguousarray(spindle_speed_of(arrays, n, self.spindle_rpm), dtype=float)
         # with the NC's context its word replaces the slow guards read from the drive signals: the measured
-        # feed (which chatter itself shakes) and the forced level's change (exits: the transient check)
+        # feed (which chatter itself shakes) and all but a large change of the forced level (exits: the
+        # transient checks)
         feed_ok = process_steady(arrays, state, measured_feed=False)
-        level_max = self.level_change if guard_source(state) != "nc_context" else math.inf
+        level_max = self.level_change if guard_source(state) != "nc_context" else _CONTEXT_LEVEL
         hold = state.get("nc_hold")              # the hold after the NC's commanded changes (None: no context)
         unsteady = np.flatnonzero(hold < 0.5) if hold is not None else ()
         if len(unsteady):                        # the last sample of a commanded change's hold
@@ -518,7 +539,11 @@ class ChatterDetector(Detector):
                     # window, a transient's comb dies away over a few (the decay check); chatter grows from the
                     # noise over revolutions and is confirmed at the recheck
                     step = (_AFTER_JUMP_REVS + self.window - self.hold_revs) * delay
-                    if ok and again and (not pending[2] or here - pending[1] >= step - 1):
+                    # after a jump the comb must hold its level (a transient's dies away)
+                    waited = here - pending[1] >= step - 1 if pending else False
+                    if ok and again and pending[2] and waited and _below_peak(sc, state["peaks"], _AFTER_JUMP_KEEP):
+                        ok = False
+                    if ok and again and (not pending[2] or waited):
                         # the same line a moment later (past a step's passage if the comb jumped): chatter (a
                         # transient's line moves or goes)
                         sc[_LATCH] = 1.0
