@@ -29,13 +29,20 @@ ONSET = 2.5
 TAU = 1.5           # the transient's decay [revolutions]
 
 
-def _trace(kind: str, seed: int = 3) -> Recording:
-    t = np.arange(int(4.0 * FS)) / FS
+def _pulses(t, lost_from=None):
+    """A 3-tooth pulse train of 40 N (tooth 1 gone from ``lost_from`` [s] on)."""
     theta = 2 * math.pi * RPM / 60.0 * t
-    pulses = np.zeros_like(t)
+    force = np.zeros_like(t)
     for j in range(3):
         phase = np.mod(theta - j * 2 * math.pi / 3, 2 * math.pi)
-        pulses += np.where(phase < 1.2, np.sin(math.pi * phase / 1.2), 0.0) * 40.0
+        gain = np.where((j == 1) & (t >= lost_from), 0.0, 40.0) if lost_from is not None else 40.0
+        force += np.where(phase < 1.2, np.sin(math.pi * phase / 1.2), 0.0) * gain
+    return force
+
+
+def _trace(kind: str, seed: int = 3) -> Recording:
+    t = np.arange(int(4.0 * FS)) / FS
+    pulses = _pulses(t)
     after = np.clip(t - ONSET, 0.0, None) / REV_S                    # revolutions since the onset
     if kind == "transient":
         amp = np.where(t >= ONSET, 12.0 * np.exp(-after / TAU), 0.0)   # jumps in, dies away
@@ -81,11 +88,7 @@ def _growing(level_fall: float = 0.0, context: bool = False, shaken_feed: bool =
     """Chatter growing 1.6x per revolution from 0.1 N at ONSET (saturating at 12 N), on a pattern whose level
     falls by ``level_fall`` over 10 revolutions from ONSET - 5 revolutions (a gradual change of engagement)."""
     t = np.arange(int(4.0 * FS)) / FS
-    theta = 2 * math.pi * RPM / 60.0 * t
-    pulses = np.zeros_like(t)
-    for j in range(3):
-        phase = np.mod(theta - j * 2 * math.pi / 3, 2 * math.pi)
-        pulses += np.where(phase < 1.2, np.sin(math.pi * phase / 1.2), 0.0) * 40.0
+    pulses = _pulses(t)
     k = np.clip((t - (ONSET - 5 * REV_S)) / (10 * REV_S), 0.0, 1.0)
     pulses *= 1.0 - level_fall * k
     revs = np.clip(t - ONSET, 0.0, None) / REV_S
@@ -118,13 +121,7 @@ def test_chatter_that_grows_from_the_noise_is_confirmed_a_turn_after_the_first_c
 def test_a_step_of_the_pattern_is_no_chatter():
     """A tooth's loss: the pattern changes at once and then repeats; the double comb passes it for two turns."""
     t = np.arange(int(4.0 * FS)) / FS
-    theta = 2 * math.pi * RPM / 60.0 * t
-    force = np.zeros_like(t)
-    for j in range(3):
-        phase = np.mod(theta - j * 2 * math.pi / 3, 2 * math.pi)
-        gain = np.where((j == 1) & (t >= ONSET), 0.0, 1.0) * 40.0
-        force += np.where(phase < 1.2, np.sin(math.pi * phase / 1.2), 0.0) * gain
-    force += np.random.default_rng(2).normal(0.0, 0.3, t.size)
+    force = _pulses(t, lost_from=ONSET) + np.random.default_rng(2).normal(0.0, 0.3, t.size)
     rec = Recording.from_arrays({"force_x": force, "spindle_speed": np.full(t.size, RPM * 2 * math.pi / 60.0)},
                                 fs=FS)
     assert ChatterDetector("x", teeth=3).detect(rec) == []
