@@ -25,10 +25,11 @@ frequency reported.
 Chatter grows from the noise over revolutions.  A step of the force (a
 breakage, a feed change) makes the comb jump within a revolution and passes it
 for two revolutions; a transient (the tool leaving the part) jumps too and then
-dies away.  A comb that stood ten times above what it was two revolutions
-before is confirmed no sooner than three revolutions and the RMS window into
-its run, and a candidate whose comb RMS has fallen below ``transient_decay`` of
-its peak over the last ten revolutions is no chatter.  With the NC's context
+dies away.  A comb that jumped (3.5 times from one revolution to the next, or 9
+times over two, within the last ten) is confirmed no sooner than three
+revolutions and the RMS window into its run and only while it holds 0.8 of its
+peak; any candidate whose comb RMS has fallen below ``transient_decay`` of its
+peak over the last ten revolutions is no chatter.  With the NC's context
 (:mod:`~drivesense.events.nc_guard`), its word replaces the guards read from the
 drive signals: the forced level's change and the measured feed, which chatter
 itself shakes, do not hold the detector there.
@@ -115,7 +116,8 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, decay, level_max,
-                  feed_ok, sc, ring, fring, levels, peaks, stat, thr_out, held, off, start, cand):  # pragma: no cover - numba
+                  feed_ok, sc, ring, fring, levels, peaks, stat, thr_out, held, off, start,
+                  cand):  # pragma: no cover - numba
     """The comb and its guards over ``force[off:]`` (``held``: the whole chunk's guard codes, ``start``: the
     chunk's first sample since the stream began); returns the samples done (fewer at a candidate)."""
     n = force.size - off
@@ -263,9 +265,8 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
 
 def _jumped(sc: np.ndarray, peaks: np.ndarray, forced_rms: float, threshold: float) -> bool:
     """Whether the comb's RMS rose more than ``_JUMP`` times from one revolution to the next (``_JUMP_2`` over
-    two) over the last
-    ``_PEAK_REVS`` (each revolution's largest, the present one's so far; below a fifth of the threshold counts
-    as that much: the noise)."""
+    two) within the last ``_PEAK_REVS`` (each revolution's largest, the present one's so far; below a fifth
+    of the threshold counts as that much: the noise)."""
     floor = 6.0 * (0.2 * threshold * forced_rms) ** 2
     done = int(sc[_LHEAD])
     seq = [max(peaks[(done - q) % peaks.size], floor) for q in range(min(done, _PEAK_REVS), 0, -1)]
