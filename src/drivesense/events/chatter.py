@@ -115,6 +115,19 @@ def _delayed(ring, head, delay):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _peak_history(sc, peaks):  # pragma: no cover - numba
+    """The comb's largest power in each of the last ``_PEAK_REVS`` revolutions (oldest first) and in the
+    present one so far."""
+    done = int(sc[_LHEAD])
+    m = min(done, _PEAK_REVS)
+    out = np.empty(m + 1)
+    for q in range(m):
+        out[q] = peaks[(done - m + q) % peaks.size]
+    out[m] = sc[_PEAK]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_revs, settle_revs, decay, level_max,
                   feed_ok, sc, ring, fring, levels, peaks, stat, thr_out, held, off, start,
                   cand):  # pragma: no cover - numba
@@ -246,10 +259,7 @@ def _chatter_loop(force, omega, fs, sos, lp, gate, threshold, hold_revs, window_
             # a transient (a part's exit, a step of the pattern) jumps within a revolution and then dies
             # away; chatter grows from the noise and holds: a comb below decay^2 of its power's peak over
             # the last _PEAK_REVS revolutions is no chatter
-            top = sc[_PEAK]
-            for q in range(1, min(_PEAK_REVS, int(sc[_LHEAD])) + 1):
-                top = max(top, peaks[(int(sc[_LHEAD]) - q) % peaks.size])
-            if comb < decay * decay * top:
+            if comb < decay * decay * _peak_history(sc, peaks).max():
                 _unconfirmed(sc, held, start, i)
                 sc[_HOLD] = 0.0
                 held[i] = 4.0
@@ -268,9 +278,7 @@ def _jumped(sc: np.ndarray, peaks: np.ndarray, forced_rms: float, threshold: flo
     two) within the last ``_PEAK_REVS`` (each revolution's largest, the present one's so far; below a fifth
     of the threshold counts as that much: the noise)."""
     floor = 6.0 * (0.2 * threshold * forced_rms) ** 2
-    done = int(sc[_LHEAD])
-    seq = [max(peaks[(done - q) % peaks.size], floor) for q in range(min(done, _PEAK_REVS), 0, -1)]
-    seq.append(max(sc[_PEAK], floor))
+    seq = [max(v, floor) for v in _peak_history(sc, peaks)]
     # a jump that straddles two revolutions' boundary shows over two
     return any(b > _JUMP ** 2 * a for a, b in zip(seq[:-1], seq[1:])) or \
         any(b > _JUMP_2 ** 2 * a for a, b in zip(seq[:-2], seq[2:]))
@@ -278,9 +286,7 @@ def _jumped(sc: np.ndarray, peaks: np.ndarray, forced_rms: float, threshold: flo
 
 def _below_peak(sc: np.ndarray, peaks: np.ndarray, share: float) -> bool:
     """Whether the comb's RMS now is below ``share`` of its largest over the last ``_PEAK_REVS`` revolutions."""
-    done = int(sc[_LHEAD])
-    top = max([sc[_PEAK]] + [peaks[(done - q) % peaks.size] for q in range(1, min(done, _PEAK_REVS) + 1)])
-    return max(sc[_EE] - sc[_EN], 0.0) < share ** 2 * top
+    return max(sc[_EE] - sc[_EN], 0.0) < share ** 2 * _peak_history(sc, peaks).max()
 
 
 class ChatterDetector(Detector):

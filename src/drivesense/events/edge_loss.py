@@ -213,10 +213,11 @@ def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) 
     offsets = np.zeros(teeth)
     fine = np.linspace(0.0, 1.3, 131)
     order = None
+    points, bases = _grid_tables(nb, teeth)[:2]
     for _ in range(2):
         # the grid with the chip offsets held, then the offsets, the pulse and the loss refined in turn
         p, r, loss, res, order = _grid(y, nb, teeth, offsets, order)
-        g = _grid_tables(nb, teeth)[1][p]
+        g = bases[p]
         yr = y[:, r:r + 1]
         for _ in range(3):
             _, coef = _scan(*_design(g, teeth, offsets), yr, np.array([loss]))
@@ -224,7 +225,7 @@ def fit_edge_loss(base_sums, base_counts, after_sums, after_counts, teeth: int) 
             rr, coef = _scan(*_design(g, teeth, offsets), yr, fine)
             li = int(np.argmin(rr[:, 0]))
             loss, res = float(fine[li]), float(rr[li, 0])
-    lo, hi, lag = _grid_tables(nb, teeth)[0][p]
+    lo, hi, lag = points[p]
     resid = math.sqrt(max(res, 0.0) / max(float(np.sum(yr ** 2)), 1e-300))
     return EdgeLossFit(edge_loss=float(min(max(loss, 0.0), 1.0)), tooth_angle_deg=float(r * 360.0 / nb),
                        engagement_deg=(float(np.rad2deg(lo)), float(np.rad2deg(hi))), lag_deg=float(np.rad2deg(lag)),

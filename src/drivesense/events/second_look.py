@@ -22,7 +22,7 @@ An exit goes on changing the pattern (or the cut ends in air): no event::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,8 +57,8 @@ class _Held:
     event: tuple                      # (sample, kind, confidence, evidence)
     named: np.ndarray                 # the named revolution's pattern, mean per bin, without its mean [N]
     theta_from: float                 # spindle angle where the second revolution starts [rad]
-    sums: np.ndarray = field(default=None)
-    counts: np.ndarray = field(default=None)
+    sums: np.ndarray                  # the second revolution's force per bin so far [N]
+    counts: np.ndarray                # its samples per bin [-]
 
 
 class SecondLook:
